@@ -1,0 +1,30 @@
+// Subcommand registration for the s2r CLI. Each cmd_*.cpp adds its
+// subcommands to the app and returns the exit code through `run`.
+#pragma once
+
+#include <CLI/CLI.hpp>
+
+#include <filesystem>
+#include <functional>
+#include <string>
+
+#include "core/report.h"
+
+namespace s2r::cli {
+
+// Exit codes: 0 ok, 1 failure, 2 usage / not available.
+using Runner = std::function<int()>;
+void set_runner(Runner r);
+
+void add_data_commands(CLI::App& app);    // synth, import, devices, capture, calibrate, register, reconstruct
+void add_render_commands(CLI::App& app);  // preview, render, eval, view, raytrace, envmap
+void add_bench_commands(CLI::App& app);   // bench
+
+// Print the report's brief line and write it to `path` (or OUT/report.json).
+int finish(const Report& report, const std::filesystem::path& path);
+int error(const std::string& message);
+// A DESIGN.md command that later work provides.
+void add_not_yet(CLI::App& app, const std::string& name, const std::string& what,
+                 const std::string& issue);
+
+}  // namespace s2r::cli

@@ -1,0 +1,65 @@
+// s2r: turntable scan -> photoreal model, one binary (docs/cli.md).
+#include <unistd.h>
+
+#include <cstdio>
+#include <cstdlib>
+
+#include "app/commands.h"
+#include "core/progress.h"
+
+namespace s2r::cli {
+
+namespace {
+Runner g_runner;
+}
+
+void set_runner(Runner r) { g_runner = std::move(r); }
+
+int finish(const Report& report, const std::filesystem::path& path) {
+  std::fprintf(stderr, "%s\n", report.brief().c_str());
+  for (const auto& w : report.warnings) std::fprintf(stderr, "warning: %s\n", w.c_str());
+  if (auto st = report.write(path); !st) return error(st.error().message);
+  std::fprintf(stderr, "report: %s\n", path.c_str());
+  return 0;
+}
+
+int error(const std::string& message) {
+  std::fprintf(stderr, "s2r: error: %s\n", message.c_str());
+  return 1;
+}
+
+void add_not_yet(CLI::App& app, const std::string& name, const std::string& what,
+                 const std::string& issue) {
+  auto* sub = app.add_subcommand(name, what + " (not yet available)");
+  sub->allow_extras();
+  sub->callback([name, issue] {
+    set_runner([name, issue] {
+      std::fprintf(stderr, "s2r %s: not yet available in this build (%s)\n", name.c_str(), issue.c_str());
+      return 2;
+    });
+  });
+}
+
+}  // namespace s2r::cli
+
+int main(int argc, char** argv) {
+  using namespace s2r::cli;
+  CLI::App app{
+      "s2r - scan2render: turntable capture -> calibration -> reconstruction -> rendering.\n"
+      "Every computing subcommand writes report.json (errors, counts, skipped work, seconds)."};
+  app.require_subcommand(1);
+  bool quiet = false;
+  app.add_flag("-q,--quiet", quiet, "no progress bars");
+  add_data_commands(app);
+  add_render_commands(app);
+  add_bench_commands(app);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  }
+  if (quiet) s2r::set_progress_enabled(false);
+  // Keep libcamera's probing quiet unless the user asked for its logs.
+  setenv("LIBCAMERA_LOG_LEVELS", "*:ERROR", 0);
+  return g_runner ? g_runner() : 2;
+}

@@ -1,0 +1,287 @@
+#include "capture/import_datasets.h"
+
+#include <algorithm>
+#include <fstream>
+#include <regex>
+#include <sstream>
+
+#include "capture/session.h"
+#include "core/image_io.h"
+#include "core/mesh.h"
+#include "core/progress.h"
+
+namespace s2r {
+namespace fs = std::filesystem;
+
+namespace {
+
+Eigen::Isometry3d orthonormalised(const Eigen::Matrix4d& m) {
+  Eigen::JacobiSVD<Eigen::Matrix3d> svd(m.topLeftCorner<3, 3>(), Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Isometry3d t = Eigen::Isometry3d::Identity();
+  t.linear() = svd.matrixU() * svd.matrixV().transpose();
+  t.translation() = m.topRightCorner<3, 1>();
+  return t;
+}
+
+ImageU8 to_rgb(ImageU8 im) {
+  if (im.channels == 3) return im;
+  ImageU8 out(im.width, im.height, 3);
+  for (int y = 0; y < im.height; ++y)
+    for (int x = 0; x < im.width; ++x)
+      for (int c = 0; c < 3; ++c) out.at(x, y, c) = im.at(x, y, im.channels >= 3 ? c : 0);
+  return out;
+}
+
+bool take(int i, const ImportOptions& o, int taken) {
+  if (i % std::max(1, o.stride) != 0) return false;
+  return o.max_frames <= 0 || taken < o.max_frames;
+}
+
+struct Importer {
+  Session header;
+  std::optional<SessionWriter> writer;
+  Report report;
+
+  Status begin(const fs::path& out, const std::string& source) {
+    header.root = out;
+    header.name = out.filename().string();
+    header.source = "import:" + source;
+    auto w = SessionWriter::create(header);
+    if (!w) return std::unexpected(w.error());
+    writer.emplace(std::move(*w));
+    report.stage = "import";
+    report.params["dataset"] = source;
+    return {};
+  }
+};
+
+// --- Stanford .conf -------------------------------------------------------------
+Result<Report> stanford(const fs::path& conf, const fs::path& out, const ImportOptions& o) {
+  std::ifstream in(conf);
+  if (!in) return fail("'" + conf.string() + "': cannot open .conf");
+  struct Entry { std::string file; Eigen::Isometry3d pose; };
+  std::vector<Entry> entries;
+  std::string line;
+  int lineno = 0;
+  while (std::getline(in, line)) {
+    ++lineno;
+    std::istringstream ls(line);
+    std::string kind;
+    if (!(ls >> kind) || kind != "bmesh") continue;
+    Entry e;
+    double t[3], q[4];
+    if (!(ls >> e.file >> t[0] >> t[1] >> t[2] >> q[0] >> q[1] >> q[2] >> q[3]))
+      return fail(conf.string() + ": line " + std::to_string(lineno) +
+                  ": expected 'bmesh FILE tx ty tz qx qy qz qw'");
+    Eigen::Quaterniond quat(q[3], q[0], q[1], q[2]);
+    if (!(quat.norm() > 0.5 && quat.norm() < 2))
+      return fail(conf.string() + ": line " + std::to_string(lineno) + ": quaternion is not unit length");
+    e.pose = Eigen::Isometry3d::Identity();
+    e.pose.linear() = quat.normalized().toRotationMatrix();
+    e.pose.translation() = Eigen::Vector3d(t[0], t[1], t[2]);
+    entries.push_back(e);
+  }
+  if (entries.empty()) return fail(conf.string() + ": no 'bmesh' lines");
+  Importer im;
+  im.header.layout = Layout::kObjectCentre;
+  im.header.notes.push_back("Stanford range scans; world_from_camera is the .conf pose "
+                            "(tx ty tz qx qy qz qw), i.e. world_from_scan");
+  if (auto st = im.begin(out, "stanford"); !st) return std::unexpected(st.error());
+  Progress progress("import stanford", entries.size());
+  int taken = 0;
+  size_t points = 0;
+  for (size_t i = 0; i < entries.size(); ++i, progress.tick()) {
+    if (!take(static_cast<int>(i), o, taken)) continue;
+    auto scan = read_ply_points(conf.parent_path() / entries[i].file);
+    if (!scan) return std::unexpected(scan.error());
+    Frame f;
+    f.index = taken;
+    f.points = "points/" + frame_file_name(taken, "ply");
+    f.source = entries[i].file;
+    f.world_from_camera = entries[i].pose;
+    if (auto st = write_ply_points(out / f.points, *scan); !st) return std::unexpected(st.error());
+    if (auto st = im.writer->add_frame(f, nullptr, nullptr); !st) return std::unexpected(st.error());
+    points += scan->points.size();
+    ++taken;
+  }
+  im.report.counts["frames"] = taken;
+  im.report.counts["points"] = double(points);
+  return im.report;
+}
+
+// --- Middlebury multi-view (K R t per image) -------------------------------------
+Result<Report> middlebury(const fs::path& path, const fs::path& out, const ImportOptions& o) {
+  fs::path par = path;
+  if (fs::is_directory(path)) {
+    par.clear();
+    for (const auto& e : fs::directory_iterator(path))
+      if (e.path().filename().string().ends_with("_par.txt")) par = e.path();
+    if (par.empty()) return fail("'" + path.string() + "': no *_par.txt file");
+  }
+  std::ifstream in(par);
+  int count = 0;
+  if (!(in >> count) || count <= 0) return fail(par.string() + ": first line must be the image count");
+  Importer im;
+  im.header.layout = Layout::kObjectCentre;
+  im.header.notes.push_back("Middlebury multi-view: P = K [R t], world_from_camera = inverse([R t])");
+  if (auto st = im.begin(out, "middlebury"); !st) return std::unexpected(st.error());
+  Progress progress("import middlebury", static_cast<size_t>(count));
+  int taken = 0;
+  for (int i = 0; i < count; ++i, progress.tick()) {
+    std::string name;
+    double v[21];
+    if (!(in >> name)) return fail(par.string() + ": expected " + std::to_string(count) + " lines, got " + std::to_string(i));
+    for (double& x : v)
+      if (!(in >> x) || !std::isfinite(x)) return fail(par.string() + ": line for '" + name + "' needs 21 finite numbers");
+    if (!take(i, o, taken)) continue;
+    auto img = read_image_u8(par.parent_path() / name);
+    if (!img) return std::unexpected(img.error());
+    Intrinsics K;
+    K.width = img->width;
+    K.height = img->height;
+    K.fx = v[0]; K.cx = v[2]; K.fy = v[4]; K.cy = v[5];
+    if (auto st = K.validate(par.string() + ": " + name); !st) return std::unexpected(st.error());
+    Eigen::Matrix4d cw = Eigen::Matrix4d::Identity();
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) cw(r, c) = v[9 + 3 * r + c];
+      cw(r, 3) = v[18 + r];
+    }
+    Frame f;
+    f.index = taken;
+    f.source = name;
+    f.intrinsics = K;
+    f.world_from_camera = orthonormalised(cw).inverse();
+    if (!im.header.color) {
+      im.header.color = ColorSensor{"import", "middlebury", "RGB8", K, 0, 0};
+      im.writer->mutable_header().color = im.header.color;
+    }
+    ImageU8 rgb = to_rgb(std::move(*img));
+    if (auto st = im.writer->add_frame(f, &rgb, nullptr); !st) return std::unexpected(st.error());
+    ++taken;
+  }
+  im.report.counts["frames"] = taken;
+  return im.report;
+}
+
+// --- RealSense D435 (depth aligned to colour, mm) --------------------------------
+Result<Report> realsense(const fs::path& dir, const fs::path& out, const ImportOptions& o) {
+  auto pair_for = [&](int i) -> std::optional<std::pair<fs::path, fs::path>> {
+    const std::string n = std::to_string(i);
+    const std::pair<fs::path, fs::path> layouts[] = {
+        {dir / "color" / ("color_" + n + ".png"), dir / "depth" / ("depth_" + n + ".png")},
+        {dir / ("rgb_" + n + ".png"), dir / ("depth_" + n + ".png")}};
+    for (const auto& p : layouts)
+      if (fs::exists(p.first) && fs::exists(p.second)) return p;
+    return std::nullopt;
+  };
+  if (!pair_for(0))
+    return fail("'" + dir.string() + "': expected color/color_0.png + depth/depth_0.png or rgb_0.png + depth_0.png");
+  Intrinsics K;  // the capture code's values for this D435 (PROVENANCE.txt)
+  K.width = 640; K.height = 480;
+  K.fx = 616.8676; K.fy = 617.0631; K.cx = 319.5701; K.cy = 233.0649;
+  Importer im;
+  im.header.layout = Layout::kObjectCentre;
+  im.header.color = ColorSensor{"import", "realsense-d435", "RGB8", K, 0, 0};
+  DepthSensor ds;
+  ds.driver = "import";
+  ds.device = "realsense-d435";
+  ds.intrinsics = K;
+  ds.unit_m = 0.001;
+  ds.aligned_to_color = true;
+  im.header.depth = ds;
+  im.header.notes.push_back("RealSense D435, depth aligned to colour (rs.align); no poses, table angles unknown");
+  if (auto st = im.begin(out, "realsense"); !st) return std::unexpected(st.error());
+  int taken = 0;
+  for (int i = 0; auto files = pair_for(i); ++i) {
+    if (!take(i, o, taken)) continue;
+    auto color = read_image_u8(files->first);
+    if (!color) return std::unexpected(color.error());
+    auto depth = read_image_u16(files->second);
+    if (!depth) return std::unexpected(depth.error());
+    if (color->width != K.width || depth->width != K.width || depth->channels != 1)
+      return fail("'" + files->second.string() + "': expected 640x480 colour and 1-channel depth");
+    Frame f;
+    f.index = taken;
+    f.source = files->first.filename().string();
+    ImageU8 rgb = to_rgb(std::move(*color));
+    if (auto st = im.writer->add_frame(f, &rgb, &*depth); !st) return std::unexpected(st.error());
+    ++taken;
+  }
+  im.report.counts["frames"] = taken;
+  return im.report;
+}
+
+// --- Microsoft 7-Scenes --------------------------------------------------------
+Result<Report> sevenscenes(const fs::path& dir, const fs::path& out, const ImportOptions& o) {
+  std::ifstream kin(dir / "camera-intrinsics.txt");
+  double k[9];
+  for (double& x : k)
+    if (!(kin >> x)) return fail("'" + (dir / "camera-intrinsics.txt").string() + "': expected a 3x3 matrix");
+  std::vector<fs::path> colors;
+  for (const auto& e : fs::directory_iterator(dir))
+    if (e.path().filename().string().ends_with(".color.jpg") || e.path().filename().string().ends_with(".color.png"))
+      colors.push_back(e.path());
+  std::sort(colors.begin(), colors.end());
+  if (colors.empty()) return fail("'" + dir.string() + "': no frame-*.color.jpg");
+  Intrinsics K;
+  K.width = 640; K.height = 480;
+  K.fx = k[0]; K.cx = k[2]; K.fy = k[4]; K.cy = k[5];
+  if (auto st = K.validate("camera-intrinsics.txt"); !st) return std::unexpected(st.error());
+  Importer im;
+  im.header.layout = Layout::kCameraCentre;
+  im.header.color = ColorSensor{"import", "kinect-v1", "RGB8", K, 0, 0};
+  DepthSensor ds;
+  ds.driver = "import";
+  ds.device = "kinect-v1";
+  ds.intrinsics = K;
+  ds.unit_m = 0.001;
+  im.header.depth = ds;
+  im.header.notes.push_back("7-Scenes: depth and colour come from different, unregistered sensors; "
+                            "colour_from_depth is unknown (identity); 65535 depth mapped to 0");
+  if (auto st = im.begin(out, "7scenes"); !st) return std::unexpected(st.error());
+  Progress progress("import 7scenes", colors.size());
+  int taken = 0;
+  for (size_t i = 0; i < colors.size(); ++i, progress.tick()) {
+    if (!take(static_cast<int>(i), o, taken)) continue;
+    std::string stem = colors[i].filename().string();
+    stem = stem.substr(0, stem.find(".color."));
+    auto color = read_image_u8(colors[i]);
+    if (!color) return std::unexpected(color.error());
+    auto depth = read_image_u16(dir / (stem + ".depth.png"));
+    if (!depth) return std::unexpected(depth.error());
+    for (auto& d : depth->data)
+      if (d == 65535) d = 0;
+    std::ifstream pin(dir / (stem + ".pose.txt"));
+    Eigen::Matrix4d m;
+    for (int r = 0; r < 16; ++r)
+      if (!(pin >> m(r / 4, r % 4)) || !std::isfinite(m(r / 4, r % 4)))
+        return fail("'" + (dir / (stem + ".pose.txt")).string() + "': expected a 4x4 matrix");
+    Frame f;
+    f.index = taken;
+    f.source = stem;
+    f.world_from_camera = orthonormalised(m);
+    ImageU8 rgb = to_rgb(std::move(*color));
+    if (auto st = im.writer->add_frame(f, &rgb, &*depth); !st) return std::unexpected(st.error());
+    ++taken;
+  }
+  im.report.counts["frames"] = taken;
+  return im.report;
+}
+
+}  // namespace
+
+Result<Report> import_dataset(const std::string& kind, const fs::path& path, const fs::path& out,
+                              const ImportOptions& options) {
+  Stopwatch clock;
+  std::error_code ec;
+  if (!fs::exists(path, ec)) return fail("'" + path.string() + "': not found");
+  Result<Report> r = fail("unknown data set '" + kind + "' (choose stanford, middlebury, realsense or 7scenes)");
+  if (kind == "stanford") r = stanford(path, out, options);
+  else if (kind == "middlebury") r = middlebury(path, out, options);
+  else if (kind == "realsense") r = realsense(path, out, options);
+  else if (kind == "7scenes") r = sevenscenes(path, out, options);
+  if (r) r->seconds = clock.seconds();
+  return r;
+}
+
+}  // namespace s2r

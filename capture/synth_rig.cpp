@@ -1,0 +1,469 @@
+// The only translation unit that includes Embree for the rig.
+#include "capture/synth_rig.h"
+
+#include <embree3/rtcore.h>
+#include <omp.h>
+
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+
+#include "capture/synth_scenes.h"
+#include "core/atomic_file.h"
+#include "core/image_io.h"
+#include "core/json_fields.h"
+#include "core/paths.h"
+#include "core/progress.h"
+
+namespace s2r {
+namespace fs = std::filesystem;
+using Eigen::Vector3d;
+using Eigen::Vector3f;
+
+namespace {
+
+constexpr double kDeg = std::numbers::pi / 180.0;
+
+uint64_t mix(uint64_t x) {  // splitmix64 finaliser
+  x += 0x9e3779b97f4a7c15ULL;
+  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ULL;
+  x = (x ^ (x >> 27)) * 0x94d049bb133111ebULL;
+  return x ^ (x >> 31);
+}
+uint64_t hash(uint64_t a, uint64_t b, uint64_t c = 0, uint64_t d = 0) {
+  return mix(a ^ mix(b ^ mix(c ^ mix(d))));
+}
+double uniform(uint64_t h) { return (double(h >> 11) + 0.5) * (1.0 / 9007199254740992.0); }
+double gaussian(uint64_t h) {  // Box-Muller from one hash
+  const double u1 = uniform(mix(h)), u2 = uniform(mix(h ^ 0xabcdefULL));
+  return std::sqrt(-2.0 * std::log(u1)) * std::cos(2 * std::numbers::pi * u2);
+}
+
+Vector3f patch_albedo(const Vector3f& p, float cell) {
+  const int64_t ix = static_cast<int64_t>(std::floor(p.x() / cell));
+  const int64_t iy = static_cast<int64_t>(std::floor(p.y() / cell));
+  const int64_t iz = static_cast<int64_t>(std::floor(p.z() / cell));
+  const uint64_t h = hash(uint64_t(ix), uint64_t(iy), uint64_t(iz), 17);
+  Vector3f c(0.2f + 0.7f * float(uniform(h)), 0.2f + 0.7f * float(uniform(mix(h + 1))),
+             0.2f + 0.7f * float(uniform(mix(h + 2))));
+  const float stripes =
+      0.85f + 0.15f * std::sin(2 * std::numbers::pi_v<float> * (p.x() + 0.7f * p.y() + 0.4f * p.z()) /
+                               (cell / 3));
+  return c * stripes;
+}
+
+struct Geometry {
+  synth::Label label;
+  synth::Texture texture;
+  const Mesh* mesh = nullptr;  // triangles
+  bool strands = false;
+};
+
+}  // namespace
+
+Status SynthOptions::validate() const {
+  if (views < 1 || views > 3600) return fail("--views must be in 1..3600");
+  if (width < 16 || height < 16 || width > 8192 || height > 8192)
+    return fail("image size must be within 16..8192 pixels");
+  if (spp != 1 && spp != 4) return fail("--spp must be 1 or 4");
+  if (!(depth_noise_k >= 0) || !(depth_unit_m > 0) || !(dropout >= 0 && dropout <= 1))
+    return fail("depth noise must be >= 0, unit > 0, dropout in [0, 1]");
+  if (!(grazing_deg > 0 && grazing_deg <= 90)) return fail("grazing angle must be in (0, 90]");
+  return {};
+}
+
+struct SynthRig::Impl {
+  SynthOptions opt;
+  synth::Scene scene;
+  Intrinsics color_K, depth_K;
+  Eigen::Isometry3d color_from_depth = Eigen::Isometry3d::Identity();
+  RTCDevice device = nullptr;
+  RTCScene rtc = nullptr;
+  std::vector<Geometry> geoms;
+  // Ray directions (camera frame, z = 1) per pixel: centre, colour sub-samples, depth neighbours.
+  std::vector<Vector3f> color_centre, color_sub, depth_centre, depth_nb;
+
+  ~Impl() {
+    if (rtc) rtcReleaseScene(rtc);
+    if (device) rtcReleaseDevice(device);
+  }
+
+  Eigen::Isometry3d world_from_camera(int view) const {
+    const double a = (view * 360.0 / opt.views - view * opt.table_error_deg) * kDeg;
+    const double sign = scene.layout == Layout::kObjectCentre ? -1.0 : 1.0;
+    Eigen::Isometry3d r = Eigen::Isometry3d::Identity();
+    r.linear() = Eigen::AngleAxisd(sign * a, Vector3d::UnitZ()).toRotationMatrix();
+    return r * scene.table_from_camera;
+  }
+
+  Vector3d light_world(int view) const {
+    if (scene.layout == Layout::kCameraCentre) return scene.light_dir_lab;
+    const double a = (view * 360.0 / opt.views - view * opt.table_error_deg) * kDeg;
+    return Eigen::AngleAxisd(-a, Vector3d::UnitZ()) * scene.light_dir_lab;
+  }
+
+  struct Hit {
+    bool hit = false;
+    float t = 0;
+    unsigned geom = 0, prim = 0;
+    float u = 0, v = 0;
+    Vector3f ng;
+  };
+
+  Hit trace(const Vector3f& org, const Vector3f& dir) const {
+    RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    RTCRayHit rh;
+    rh.ray.org_x = org.x(); rh.ray.org_y = org.y(); rh.ray.org_z = org.z();
+    rh.ray.dir_x = dir.x(); rh.ray.dir_y = dir.y(); rh.ray.dir_z = dir.z();
+    rh.ray.tnear = 0.f;
+    rh.ray.tfar = static_cast<float>(scene.far_m);
+    rh.ray.mask = 0xFFFFFFFFu;
+    rh.ray.flags = 0;
+    rh.ray.time = 0.f;
+    rh.ray.id = 0;
+    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    rtcIntersect1(rtc, &ctx, &rh);
+    Hit h;
+    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return h;
+    h.hit = true;
+    h.t = rh.ray.tfar;
+    h.geom = rh.hit.geomID;
+    h.prim = rh.hit.primID;
+    h.u = rh.hit.u;
+    h.v = rh.hit.v;
+    h.ng = Vector3f(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z);
+    return h;
+  }
+
+  // Linear radiance seen along `dir` from `org`.
+  Vector3f shade(const Hit& h, const Vector3f& org, const Vector3f& dir, const Vector3f& light) const {
+    if (!h.hit) return Vector3f::Constant(0.03f);
+    const Geometry& g = geoms[h.geom];
+    const Vector3f p = org + h.t * dir;
+    Vector3f n = h.ng.normalized();
+    Vector3f albedo;
+    if (g.strands) {
+      albedo = scene.strands.colors[h.prim];
+    } else {
+      const auto& f = g.mesh->faces[h.prim];
+      const auto& N = g.mesh->normals;
+      Vector3f ns = (1 - h.u - h.v) * N[f[0]] + h.u * N[f[1]] + h.v * N[f[2]];
+      if (ns.squaredNorm() > 0) n = ns.normalized();
+      switch (g.texture) {
+        case synth::Texture::kPatches: albedo = patch_albedo(p, 0.012f); break;
+        case synth::Texture::kWalls: albedo = patch_albedo(p, 0.3f); break;
+        default: albedo = Vector3f(0.55f, 0.5f, 0.45f); break;
+      }
+    }
+    if (n.dot(dir) > 0) n = -n;
+    return albedo * (0.3f + 0.7f * std::max(0.f, n.dot(light)));
+  }
+};
+
+SynthRig::SynthRig(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+SynthRig::~SynthRig() = default;
+
+Result<std::unique_ptr<SynthRig>> SynthRig::create(const SynthOptions& options) {
+  if (auto st = options.validate(); !st) return std::unexpected(st.error());
+  auto impl = std::make_unique<Impl>();
+  impl->opt = options;
+  const fs::path data = options.data_dir.empty() ? data_dir() : options.data_dir;
+  auto scene = synth::make_scene(options.scene, options.seed, data);
+  if (!scene) return std::unexpected(scene.error());
+  impl->scene = std::move(*scene);
+
+  const double s = options.width / 640.0;
+  const int w = options.width, h = options.height;
+  Intrinsics& c = impl->color_K;
+  c.width = w; c.height = h;
+  c.fx = 600.0 * s; c.fy = 601.5 * s;
+  c.cx = (w - 1) / 2.0 + 3.1 * s; c.cy = (h - 1) / 2.0 - 2.3 * s;
+  c.dist = {-0.12, 0.05, 0.0008, -0.0005, 0.0};
+  Intrinsics& d = impl->depth_K;
+  d.width = w; d.height = h;
+  d.fx = 583.0 * s; d.fy = 583.0 * s;
+  d.cx = (w - 1) / 2.0 - 1.5 * s; d.cy = (h - 1) / 2.0 + 1.2 * s;
+  impl->color_from_depth.linear() =
+      (Eigen::AngleAxisd(0.4 * kDeg, Vector3d::UnitY()) * Eigen::AngleAxisd(-0.2 * kDeg, Vector3d::UnitX()))
+          .toRotationMatrix();
+  impl->color_from_depth.translation() = Vector3d(0.025, 0.001, -0.0005);
+
+  // Ray tables.
+  auto table = [&](const Intrinsics& K, std::vector<Vector3f>& out,
+                   const std::vector<Eigen::Vector2d>& offsets) -> Status {
+    out.resize(static_cast<size_t>(w) * h * offsets.size());
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x)
+        for (size_t k = 0; k < offsets.size(); ++k) {
+          auto r = K.ray(Eigen::Vector2d(x, y) + offsets[k]);
+          if (!r) return fail("lens model does not invert at pixel " + std::to_string(x) + "," + std::to_string(y));
+          out[(static_cast<size_t>(y) * w + x) * offsets.size() + k] = r->cast<float>();
+        }
+    return {};
+  };
+  std::vector<Eigen::Vector2d> sub = options.spp == 1
+      ? std::vector<Eigen::Vector2d>{{0, 0}}
+      : std::vector<Eigen::Vector2d>{{-0.25, -0.25}, {0.25, -0.25}, {-0.25, 0.25}, {0.25, 0.25}};
+  for (auto st : {table(c, impl->color_centre, {{0, 0}}), table(c, impl->color_sub, sub),
+                  table(d, impl->depth_centre, {{0, 0}}),
+                  table(d, impl->depth_nb, {{-0.75, 0}, {0.75, 0}, {0, -0.75}, {0, 0.75}})})
+    if (!st) return std::unexpected(st.error());
+
+  // Embree scene.
+  impl->device = rtcNewDevice(nullptr);
+  if (!impl->device) return fail("Embree: cannot create a device (error " + std::to_string(rtcGetDeviceError(nullptr)) + ")");
+  impl->rtc = rtcNewScene(impl->device);
+  rtcSetSceneBuildQuality(impl->rtc, RTC_BUILD_QUALITY_HIGH);
+  for (const auto& surf : impl->scene.surfaces) {
+    RTCGeometry g = rtcNewGeometry(impl->device, RTC_GEOMETRY_TYPE_TRIANGLE);
+    auto* vb = static_cast<float*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                                                           3 * sizeof(float), surf.mesh.vertices.size()));
+    auto* ib = static_cast<unsigned*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                                                              3 * sizeof(unsigned), surf.mesh.faces.size()));
+    for (size_t i = 0; i < surf.mesh.vertices.size(); ++i)
+      for (int k = 0; k < 3; ++k) vb[3 * i + k] = surf.mesh.vertices[i][k];
+    for (size_t i = 0; i < surf.mesh.faces.size(); ++i)
+      for (int k = 0; k < 3; ++k) ib[3 * i + k] = static_cast<unsigned>(surf.mesh.faces[i][k]);
+    rtcCommitGeometry(g);
+    unsigned id = rtcAttachGeometry(impl->rtc, g);
+    rtcReleaseGeometry(g);
+    if (impl->geoms.size() <= id) impl->geoms.resize(id + 1);
+    impl->geoms[id] = Geometry{synth::kSurface, surf.texture, &surf.mesh, false};
+  }
+  const auto& st = impl->scene.strands;
+  if (!st.segments.empty()) {
+    RTCGeometry g = rtcNewGeometry(impl->device, RTC_GEOMETRY_TYPE_ROUND_LINEAR_CURVE);
+    auto* vb = static_cast<float*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4,
+                                                           4 * sizeof(float), st.points.size()));
+    auto* ib = static_cast<unsigned*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT,
+                                                              sizeof(unsigned), st.segments.size()));
+    for (size_t i = 0; i < st.points.size(); ++i)
+      for (int k = 0; k < 4; ++k) vb[4 * i + k] = st.points[i][k];
+    std::copy(st.segments.begin(), st.segments.end(), ib);
+    rtcCommitGeometry(g);
+    unsigned id = rtcAttachGeometry(impl->rtc, g);
+    rtcReleaseGeometry(g);
+    if (impl->geoms.size() <= id) impl->geoms.resize(id + 1);
+    impl->geoms[id] = Geometry{synth::kStrand, synth::Texture::kPlain, nullptr, true};
+  }
+  rtcCommitScene(impl->rtc);
+  if (rtcGetDeviceError(impl->device) != RTC_ERROR_NONE) return fail("Embree: scene build failed");
+  return std::unique_ptr<SynthRig>(new SynthRig(std::move(impl)));
+}
+
+const SynthOptions& SynthRig::options() const { return impl_->opt; }
+Layout SynthRig::layout() const { return impl_->scene.layout; }
+const Intrinsics& SynthRig::color_intrinsics() const { return impl_->color_K; }
+const Intrinsics& SynthRig::depth_intrinsics() const { return impl_->depth_K; }
+const Eigen::Isometry3d& SynthRig::color_from_depth() const { return impl_->color_from_depth; }
+Eigen::Isometry3d SynthRig::world_from_camera(int view) const { return impl_->world_from_camera(view); }
+double SynthRig::commanded_angle_deg(int view) const { return view * 360.0 / impl_->opt.views; }
+double SynthRig::true_angle_deg(int view) const {
+  return view * 360.0 / impl_->opt.views - view * impl_->opt.table_error_deg;
+}
+Vector3d SynthRig::axis_dir_camera() const {
+  return impl_->scene.table_from_camera.inverse().linear() * Vector3d::UnitZ();
+}
+Vector3d SynthRig::axis_point_camera() const {
+  return impl_->scene.table_from_camera.inverse() * Vector3d::Zero();
+}
+
+SynthView SynthRig::render(int view) const {
+  const Impl& m = *impl_;
+  const int w = m.opt.width, h = m.opt.height;
+  const size_t spp = m.color_sub.size() / (static_cast<size_t>(w) * h);
+  SynthView out;
+  out.color = ImageU8(w, h, 3);
+  out.gt_depth_color = ImageF(w, h, 1);
+  out.depth = ImageU16(w, h, 1);
+  out.gt_depth = ImageF(w, h, 1);
+  out.labels = ImageU8(w, h, 1);
+  const Eigen::Isometry3f wc = m.world_from_camera(view).cast<float>();
+  const Eigen::Isometry3f wd = (m.world_from_camera(view) * m.color_from_depth).cast<float>();
+  const Vector3f light = m.light_world(view).cast<float>();
+  const float cos_grazing = static_cast<float>(std::cos(m.opt.grazing_deg * kDeg));
+  const uint64_t seed = m.opt.seed;
+  const int threads = m.opt.threads > 0 ? m.opt.threads : omp_get_max_threads();
+
+#pragma omp parallel for schedule(dynamic, 4) num_threads(threads)
+  for (int y = 0; y < h; ++y) {
+    for (int x = 0; x < w; ++x) {
+      const size_t pix = static_cast<size_t>(y) * w + x;
+      // Colour: sub-samples averaged, then gamma, noise, 8 bits.
+      const Vector3f oc = wc.translation();
+      Vector3f sum = Vector3f::Zero();
+      for (size_t k = 0; k < spp; ++k) {
+        const Vector3f d = wc.linear() * m.color_sub[pix * spp + k];
+        sum += m.shade(m.trace(oc, d), oc, d, light);
+      }
+      sum /= float(spp);
+      for (int c = 0; c < 3; ++c) {
+        double v = std::pow(std::clamp(double(sum[c]), 0.0, 1.0), 1 / 2.2) * 255.0;
+        v += m.opt.color_noise * gaussian(hash(seed, uint64_t(view), pix, 100 + uint64_t(c)));
+        out.color.at(x, y, c) = static_cast<uint8_t>(std::clamp(std::lround(v), 0L, 255L));
+      }
+      const auto gc = m.trace(oc, wc.linear() * m.color_centre[pix]);
+      out.gt_depth_color.at(x, y) = gc.hit ? gc.t : 0.f;
+
+      // Depth camera: exact z, label, then the sensor model.
+      const Vector3f od = wd.translation();
+      const Vector3f dc = wd.linear() * m.depth_centre[pix];
+      const auto hc = m.trace(od, dc);
+      if (!hc.hit) continue;
+      out.gt_depth.at(x, y) = hc.t;
+      out.labels.at(x, y) = m.geoms[hc.geom].label;
+      bool hole = false;
+      for (int k = 0; k < 4 && !hole; ++k) {
+        const auto hn = m.trace(od, wd.linear() * m.depth_nb[pix * 4 + k]);
+        hole = !hn.hit || std::abs(hn.t - hc.t) > 0.02f * hc.t;
+      }
+      const float cos_inc = std::abs(hc.ng.normalized().dot(dc.normalized()));
+      hole = hole || cos_inc < cos_grazing;
+      hole = hole || (m.opt.dropout > 0 && uniform(hash(seed, uint64_t(view), pix, 200)) < m.opt.dropout);
+      if (hole) continue;
+      const double z = hc.t + m.opt.depth_noise_k * hc.t * hc.t * gaussian(hash(seed, uint64_t(view), pix, 300));
+      const long count = std::lround(z / m.opt.depth_unit_m);
+      if (count >= 1 && count <= 65535) out.depth.at(x, y) = static_cast<uint16_t>(count);
+    }
+  }
+  out.rays = static_cast<size_t>(w) * h * (spp + 6);
+  return out;
+}
+
+Status SynthRig::write_geometry(const fs::path& dir) const {
+  Mesh all;
+  for (const auto& s : impl_->scene.surfaces) {
+    const int base = static_cast<int>(all.vertices.size());
+    all.vertices.insert(all.vertices.end(), s.mesh.vertices.begin(), s.mesh.vertices.end());
+    for (const auto& f : s.mesh.faces) all.faces.emplace_back(f + Eigen::Vector3i::Constant(base));
+  }
+  if (auto st = write_ply_mesh(dir / "geometry.ply", all); !st) return st;
+  const auto& st = impl_->scene.strands;
+  if (st.segments.empty()) return {};
+  std::string ply = "ply\nformat ascii 1.0\ncomment strands: round linear curves, radius per vertex\n";
+  ply += "element vertex " + std::to_string(st.points.size()) +
+         "\nproperty float x\nproperty float y\nproperty float z\nproperty float radius\n";
+  ply += "element edge " + std::to_string(st.segments.size()) +
+         "\nproperty int vertex1\nproperty int vertex2\nend_header\n";
+  char buf[128];
+  for (const auto& p : st.points) {
+    std::snprintf(buf, sizeof buf, "%.7g %.7g %.7g %.7g\n", p.x(), p.y(), p.z(), p.w());
+    ply += buf;
+  }
+  for (uint32_t s : st.segments) ply += std::to_string(s) + " " + std::to_string(s + 1) + "\n";
+  return write_file_atomic(dir / "strands.ply", ply);
+}
+
+namespace {
+
+nlohmann::json intrinsics_json(const Intrinsics& k) {
+  return {{"width", k.width}, {"height", k.height}, {"fx", k.fx}, {"fy", k.fy},
+          {"cx", k.cx},       {"cy", k.cy},         {"dist", k.dist}};
+}
+
+}  // namespace
+
+Result<Report> synth_session(const SynthOptions& options, const fs::path& out) {
+  Stopwatch clock;
+  auto rig = SynthRig::create(options);
+  if (!rig) return std::unexpected(rig.error());
+  const SynthRig& r = **rig;
+
+  Session header;
+  header.root = out;
+  header.name = out.filename().string();
+  header.source = "synth:" + options.scene;
+  header.layout = r.layout();
+  header.color = ColorSensor{"synth", options.scene, "RGB8", r.color_intrinsics(), 10000, 1};
+  DepthSensor ds;
+  ds.driver = "synth";
+  ds.device = options.scene;
+  ds.intrinsics = r.depth_intrinsics();
+  ds.unit_m = options.depth_unit_m;
+  ds.color_from_depth = r.color_from_depth();
+  header.depth = ds;
+  header.turntable = TurntableInfo{"synth", "virtual"};
+  header.notes.push_back("synthetic turntable rig; exact poses, depth and geometry in ground_truth/");
+  auto writer = SessionWriter::create(header);
+  if (!writer) return std::unexpected(writer.error());
+
+  const fs::path gt = out / "ground_truth";
+  Report rep;
+  rep.stage = "synth";
+  double sq_err = 0, n_valid = 0, n_holes = 0, n_seen = 0, strand_px = 0, strand_holes = 0;
+  size_t rays = 0;
+  nlohmann::json frames = nlohmann::json::array();
+  Progress progress("synth " + options.scene, static_cast<size_t>(options.views));
+  for (int i = 0; i < options.views; ++i) {
+    SynthView v = r.render(i);
+    rays += v.rays;
+    for (size_t p = 0; p < v.depth.pixels(); ++p) {
+      if (v.labels.data[p] == 0) continue;
+      ++n_seen;
+      const bool strand = v.labels.data[p] == synth::kStrand;
+      strand_px += strand;
+      if (v.depth.data[p] == 0) {
+        ++n_holes;
+        strand_holes += strand;
+        continue;
+      }
+      const double e = v.depth.data[p] * options.depth_unit_m - v.gt_depth.data[p];
+      sq_err += e * e;
+      ++n_valid;
+    }
+    const std::string name = frame_file_name(i, "exr");
+    for (auto st : {write_image(gt / "depth_color" / name, v.gt_depth_color),
+                    write_image(gt / "depth" / name, v.gt_depth),
+                    write_image(gt / "labels" / frame_file_name(i, "png"), v.labels)})
+      if (!st) return std::unexpected(st.error());
+    Frame f;
+    f.index = i;
+    f.table_angle_commanded_deg = r.commanded_angle_deg(i);
+    f.table_angle_reported_deg = r.commanded_angle_deg(i);
+    f.timestamp_ns = int64_t(i) * 2'000'000'000LL;
+    f.exposure_us = 10000;
+    if (auto st = writer->add_frame(f, &v.color, &v.depth); !st) return std::unexpected(st.error());
+    frames.push_back({{"index", i}, {"table_angle_true_deg", r.true_angle_deg(i)},
+                      {"world_from_camera", rigid_to_json(r.world_from_camera(i))},
+                      {"world_from_depth", rigid_to_json(r.world_from_camera(i) * r.color_from_depth())}});
+    progress.tick();
+  }
+  progress.done();
+
+  nlohmann::json truth = {
+      {"format", "s2r.synth_truth"}, {"version", 1}, {"scene", options.scene},
+      {"seed", options.seed},
+      {"layout", r.layout() == Layout::kObjectCentre ? "object_centre" : "camera_centre"},
+      {"color_intrinsics", intrinsics_json(r.color_intrinsics())},
+      {"depth_intrinsics", intrinsics_json(r.depth_intrinsics())},
+      {"color_from_depth", rigid_to_json(r.color_from_depth())},
+      {"axis_dir_camera", {r.axis_dir_camera().x(), r.axis_dir_camera().y(), r.axis_dir_camera().z()}},
+      {"axis_point_camera", {r.axis_point_camera().x(), r.axis_point_camera().y(), r.axis_point_camera().z()}},
+      {"depth_model", {{"noise_k", options.depth_noise_k}, {"unit_m", options.depth_unit_m},
+                       {"grazing_deg", options.grazing_deg}, {"dropout", options.dropout},
+                       {"discontinuity_rel", 0.02}, {"window_px", 0.75}}},
+      {"depth_files", "ground_truth/depth/NNNN.exr: exact z (m) in the depth camera; "
+                      "depth_color/: exact z in the colour camera; labels/: 0 none, 1 surface, 2 strand"},
+      {"frames", frames}};
+  if (auto st = write_file_atomic(gt / "rig.json", dump_json(truth)); !st) return std::unexpected(st.error());
+  if (auto st = r.write_geometry(gt); !st) return std::unexpected(st.error());
+
+  rep.seconds = clock.seconds();
+  rep.counts["frames"] = options.views;
+  rep.counts["rays"] = double(rays);
+  rep.counts["pixels_seen"] = n_seen;
+  rep.errors["depth_rms_mm"] = n_valid > 0 ? 1000 * std::sqrt(sq_err / n_valid) : 0;
+  rep.errors["depth_hole_fraction"] = n_seen > 0 ? n_holes / n_seen : 0;
+  if (strand_px > 0) rep.errors["strand_hole_fraction"] = strand_holes / strand_px;
+  rep.params["scene"] = options.scene;
+  rep.params["views"] = double(options.views);
+  rep.params["seed"] = double(options.seed);
+  rep.params["width"] = double(options.width);
+  rep.params["height"] = double(options.height);
+  rep.params["spp"] = double(options.spp);
+  return rep;
+}
+
+}  // namespace s2r

@@ -1,0 +1,53 @@
+// Scenes of the synthetic turntable rig (DESIGN.md section 14): geometry,
+// appearance, camera placement and light. Rendering lives in synth_rig.cpp.
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include "capture/session.h"
+#include "core/mesh.h"
+#include "core/result.h"
+
+namespace s2r::synth {
+
+enum Label : uint8_t { kNothing = 0, kSurface = 1, kStrand = 2 };
+enum class Texture { kPatches, kWalls, kPlain };
+
+struct Surface {
+  Mesh mesh;  // with vertex normals, in the world frame
+  Texture texture = Texture::kPatches;
+};
+
+// Thin round curves (Embree linear round curves): control points with radius,
+// and for each segment the index of its first control point.
+struct Strands {
+  std::vector<Eigen::Vector4f> points;  // x y z radius
+  std::vector<uint32_t> segments;
+  std::vector<Eigen::Vector3f> colors;  // per segment
+};
+
+struct Scene {
+  std::string name;
+  Layout layout = Layout::kObjectCentre;
+  std::vector<Surface> surfaces;
+  Strands strands;
+  // Pose of the colour camera in the table frame at table angle 0.
+  Eigen::Isometry3d table_from_camera = Eigen::Isometry3d::Identity();
+  Eigen::Vector3d light_dir_lab = Eigen::Vector3d::UnitZ();  // towards the light
+  double far_m = 10;
+};
+
+// Names: "bunny" (textured Stanford bunny), "fuzzy" (core + thousands of thin
+// strands), "room" (camera in the middle of a furnished room), "blob" (a
+// closed textured object needing no external data).
+Result<Scene> make_scene(const std::string& name, uint64_t seed,
+                         const std::filesystem::path& data_dir);
+std::vector<std::string> scene_names();
+
+}  // namespace s2r::synth

@@ -1,0 +1,132 @@
+#include "core/atomic_file.h"
+
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
+#include <fstream>
+#include <sstream>
+
+namespace s2r {
+namespace fs = std::filesystem;
+
+namespace {
+
+std::string errno_text(int err) { return std::strerror(err); }
+
+fs::path temp_name_for(const fs::path& path) {
+  // ".<stem>.tmp-<pid><ext>" keeps the extension for format-by-extension writers.
+  return path.parent_path() /
+         ("." + path.stem().string() + ".tmp-" + std::to_string(::getpid()) +
+          path.extension().string());
+}
+
+Status fsync_path(const fs::path& path, int flags) {
+  int fd = ::open(path.c_str(), flags | O_CLOEXEC);
+  if (fd < 0) return fail("cannot open '" + path.string() + "' to sync: " + errno_text(errno));
+  int rc = ::fsync(fd);
+  int err = errno;
+  ::close(fd);
+  if (rc != 0) return fail("fsync of '" + path.string() + "' failed: " + errno_text(err));
+  return {};
+}
+
+Status ensure_parent(const fs::path& path) {
+  fs::path parent = path.parent_path();
+  if (parent.empty()) return {};
+  std::error_code ec;
+  fs::create_directories(parent, ec);
+  if (ec) return fail("cannot create folder '" + parent.string() + "': " + ec.message());
+  return {};
+}
+
+}  // namespace
+
+Status sync_directory(const fs::path& dir) {
+  return fsync_path(dir.empty() ? fs::path(".") : dir, O_RDONLY | O_DIRECTORY);
+}
+
+Status write_via_temp(const fs::path& path,
+                      const std::function<Status(const fs::path& tmp)>& write_to) {
+  if (auto st = ensure_parent(path); !st) return st;
+  const fs::path tmp = temp_name_for(path);
+  auto cleanup = [&] {
+    std::error_code ec;
+    fs::remove(tmp, ec);
+  };
+  if (auto st = write_to(tmp); !st) {
+    cleanup();
+    return fail("writing '" + path.string() + "': " + st.error().message);
+  }
+  if (auto st = fsync_path(tmp, O_RDONLY); !st) {
+    cleanup();
+    return st;
+  }
+  if (::rename(tmp.c_str(), path.c_str()) != 0) {
+    int err = errno;
+    cleanup();
+    return fail("cannot rename '" + tmp.string() + "' to '" + path.string() +
+                "': " + errno_text(err));
+  }
+  return sync_directory(path.parent_path());
+}
+
+Status write_file_atomic(const fs::path& path, std::string_view bytes) {
+  return write_via_temp(path, [&](const fs::path& tmp) -> Status {
+    int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    if (fd < 0) return fail("cannot create '" + tmp.string() + "': " + errno_text(errno));
+    size_t done = 0;
+    while (done < bytes.size()) {
+      ssize_t n = ::write(fd, bytes.data() + done, bytes.size() - done);
+      if (n < 0) {
+        if (errno == EINTR) continue;
+        int err = errno;
+        ::close(fd);
+        return fail("write to '" + tmp.string() + "' failed: " + errno_text(err));
+      }
+      done += static_cast<size_t>(n);
+    }
+    if (::close(fd) != 0) return fail("close of '" + tmp.string() + "' failed: " + errno_text(errno));
+    return {};
+  });
+}
+
+Status append_line_durable(const fs::path& path, std::string_view line) {
+  if (auto st = ensure_parent(path); !st) return st;
+  int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_APPEND | O_CLOEXEC, 0644);
+  if (fd < 0) return fail("cannot open journal '" + path.string() + "': " + errno_text(errno));
+  std::string buf(line);
+  buf.push_back('\n');
+  size_t done = 0;
+  while (done < buf.size()) {
+    ssize_t n = ::write(fd, buf.data() + done, buf.size() - done);
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      int err = errno;
+      ::close(fd);
+      return fail("append to '" + path.string() + "' failed: " + errno_text(err));
+    }
+    done += static_cast<size_t>(n);
+  }
+  int rc = ::fsync(fd);
+  int err = errno;
+  ::close(fd);
+  if (rc != 0) return fail("fsync of '" + path.string() + "' failed: " + errno_text(err));
+  return {};
+}
+
+Result<std::string> read_file(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) {
+    std::error_code ec;
+    if (!fs::exists(path, ec)) return fail("'" + path.string() + "': file not found");
+    return fail("'" + path.string() + "': cannot open for reading");
+  }
+  std::ostringstream ss;
+  ss << in.rdbuf();
+  if (in.bad()) return fail("'" + path.string() + "': read error");
+  return ss.str();
+}
+
+}  // namespace s2r

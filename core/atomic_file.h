@@ -1,0 +1,34 @@
+// Atomic writes: every file the product writes goes through here.
+//
+// The bytes go to a temporary file in the destination's folder, are fsync'ed,
+// and the temporary is renamed over the destination; then the folder is
+// fsync'ed. A reader (or a resumed capture) sees the old file or the new one,
+// never a half-written one.
+#pragma once
+
+#include <filesystem>
+#include <functional>
+#include <string_view>
+
+#include "core/result.h"
+
+namespace s2r {
+
+// Write `bytes` to `path` atomically. Creates missing parent folders.
+Status write_file_atomic(const std::filesystem::path& path, std::string_view bytes);
+
+// For writers that need a real file name (image libraries choose the format by
+// extension): `write_to(tmp)` writes the temporary; it is then fsync'ed and
+// renamed to `path`. The temporary keeps `path`'s extension.
+Status write_via_temp(const std::filesystem::path& path,
+                      const std::function<Status(const std::filesystem::path& tmp)>& write_to);
+
+// Append one line to a journal file and fsync it (the line is durable on return).
+Status append_line_durable(const std::filesystem::path& path, std::string_view line);
+
+Result<std::string> read_file(const std::filesystem::path& path);
+
+// fsync a folder so that a rename inside it is durable.
+Status sync_directory(const std::filesystem::path& dir);
+
+}  // namespace s2r

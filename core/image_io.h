@@ -1,0 +1,27 @@
+// Image files through OpenImageIO: PNG (8/16-bit), JPEG, EXR, HDR, ...
+// Reads validate fully (a truncated or corrupt file is an error naming the
+// file); writes are atomic.
+#pragma once
+
+#include <filesystem>
+
+#include "core/image.h"
+#include "core/result.h"
+
+namespace s2r {
+
+struct ImageInfo {
+  int width = 0, height = 0, channels = 0;
+  int bits = 0;  // bits per channel as stored
+};
+
+Result<ImageInfo> probe_image(const std::filesystem::path& path);
+Result<ImageU8> read_image_u8(const std::filesystem::path& path);
+Result<ImageU16> read_image_u16(const std::filesystem::path& path);  // 16-bit PNG depth
+Result<ImageF> read_image_float(const std::filesystem::path& path);  // EXR/HDR or scaled
+
+Status write_image(const std::filesystem::path& path, const ImageU8& image);
+Status write_image(const std::filesystem::path& path, const ImageU16& image);
+Status write_image(const std::filesystem::path& path, const ImageF& image);  // EXR
+
+}  // namespace s2r

@@ -1,0 +1,88 @@
+#include "core/image_metrics.h"
+
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include <cmath>
+#include <limits>
+
+namespace s2r {
+
+namespace {
+
+Status check_pair(const ImageU8& a, const ImageU8& b, const ImageU8* mask) {
+  if (a.empty() || b.empty()) return fail("image metric: empty image");
+  if (!a.same_shape(b))
+    return fail("image metric: shapes differ (" + std::to_string(a.width) + "x" +
+                std::to_string(a.height) + "x" + std::to_string(a.channels) + " vs " +
+                std::to_string(b.width) + "x" + std::to_string(b.height) + "x" +
+                std::to_string(b.channels) + ")");
+  if (mask && (mask->width != a.width || mask->height != a.height || mask->channels != 1))
+    return fail("image metric: mask must be single-channel and the images' size");
+  return {};
+}
+
+cv::Mat as_mat(const ImageU8& im) {
+  return cv::Mat(im.height, im.width, CV_MAKETYPE(CV_8U, im.channels),
+                 const_cast<uint8_t*>(im.data.data()));
+}
+
+}  // namespace
+
+Result<double> psnr(const ImageU8& a, const ImageU8& b, const ImageU8* mask) {
+  if (auto st = check_pair(a, b, mask); !st) return std::unexpected(st.error());
+  double sse = 0;
+  size_t n = 0;
+  for (int y = 0; y < a.height; ++y)
+    for (int x = 0; x < a.width; ++x) {
+      if (mask && mask->at(x, y) == 0) continue;
+      for (int c = 0; c < a.channels; ++c) {
+        double d = double(a.at(x, y, c)) - double(b.at(x, y, c));
+        sse += d * d;
+      }
+      n += static_cast<size_t>(a.channels);
+    }
+  if (n == 0) return fail("image metric: mask selects no pixel");
+  double mse = sse / double(n);
+  if (mse == 0) return std::numeric_limits<double>::infinity();
+  return 10.0 * std::log10(255.0 * 255.0 / mse);
+}
+
+Result<double> ssim(const ImageU8& a, const ImageU8& b, const ImageU8* mask) {
+  if (auto st = check_pair(a, b, mask); !st) return std::unexpected(st.error());
+  const double C1 = (0.01 * 255) * (0.01 * 255), C2 = (0.03 * 255) * (0.03 * 255);
+  cv::Mat I1, I2;
+  as_mat(a).convertTo(I1, CV_64F);
+  as_mat(b).convertTo(I2, CV_64F);
+  const cv::Size win(11, 11);
+  const double sigma = 1.5;
+  auto blur = [&](const cv::Mat& m) {
+    cv::Mat o;
+    cv::GaussianBlur(m, o, win, sigma, sigma, cv::BORDER_REFLECT);
+    return o;
+  };
+  cv::Mat mu1 = blur(I1), mu2 = blur(I2);
+  cv::Mat mu1_2 = mu1.mul(mu1), mu2_2 = mu2.mul(mu2), mu1_mu2 = mu1.mul(mu2);
+  cv::Mat s1 = blur(I1.mul(I1)) - mu1_2;
+  cv::Mat s2 = blur(I2.mul(I2)) - mu2_2;
+  cv::Mat s12 = blur(I1.mul(I2)) - mu1_mu2;
+  cv::Mat num = (2 * mu1_mu2 + C1).mul(2 * s12 + C2);
+  cv::Mat den = (mu1_2 + mu2_2 + C1).mul(s1 + s2 + C2);
+  cv::Mat map;
+  cv::divide(num, den, map);
+  double sum = 0;
+  size_t n = 0;
+  const int ch = a.channels;
+  for (int y = 0; y < a.height; ++y) {
+    const double* row = map.ptr<double>(y);
+    for (int x = 0; x < a.width; ++x) {
+      if (mask && mask->at(x, y) == 0) continue;
+      for (int c = 0; c < ch; ++c) sum += row[x * ch + c];
+      n += static_cast<size_t>(ch);
+    }
+  }
+  if (n == 0) return fail("image metric: mask selects no pixel");
+  return sum / double(n);
+}
+
+}  // namespace s2r

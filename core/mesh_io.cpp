@@ -1,0 +1,131 @@
+// The only translation unit of core/ that includes PCL.
+#include <pcl/PolygonMesh.h>
+#include <pcl/conversions.h>
+#include <pcl/io/ply_io.h>
+#include <pcl/point_types.h>
+
+#include <cmath>
+
+#include "core/atomic_file.h"
+#include "core/mesh.h"
+
+namespace s2r {
+namespace fs = std::filesystem;
+
+void Mesh::compute_vertex_normals() {
+  normals.assign(vertices.size(), Eigen::Vector3f::Zero());
+  for (const auto& f : faces) {
+    const Eigen::Vector3f n = (vertices[f[1]] - vertices[f[0]]).cross(vertices[f[2]] - vertices[f[0]]);
+    for (int k = 0; k < 3; ++k) normals[f[k]] += n;
+  }
+  for (auto& n : normals) {
+    float len = n.norm();
+    n = len > 0 ? Eigen::Vector3f(n / len) : Eigen::Vector3f(0, 0, 1);
+  }
+}
+
+Eigen::AlignedBox3f Mesh::bounds() const {
+  Eigen::AlignedBox3f b;
+  for (const auto& v : vertices) b.extend(v);
+  return b;
+}
+
+void Mesh::transform(const Eigen::Isometry3d& t) {
+  const Eigen::Isometry3f tf = t.cast<float>();
+  for (auto& v : vertices) v = tf * v;
+  for (auto& n : normals) n = (tf.linear() * n).normalized();
+}
+
+namespace {
+Status check_exists(const fs::path& path) {
+  std::error_code ec;
+  if (!fs::exists(path, ec)) return fail("'" + path.string() + "': PLY file not found");
+  if (fs::file_size(path, ec) == 0) return fail("'" + path.string() + "': PLY file is empty");
+  return {};
+}
+}  // namespace
+
+Result<Mesh> read_ply_mesh(const fs::path& path) {
+  if (auto st = check_exists(path); !st) return std::unexpected(st.error());
+  pcl::PolygonMesh pm;
+  pcl::PLYReader reader;
+  if (reader.read(path.string(), pm) < 0)
+    return fail("'" + path.string() + "': cannot parse PLY (truncated or corrupt?)");
+  pcl::PointCloud<pcl::PointXYZ> cloud;
+  pcl::fromPCLPointCloud2(pm.cloud, cloud);
+  Mesh m;
+  m.vertices.reserve(cloud.size());
+  for (const auto& p : cloud.points) {
+    if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z))
+      return fail("'" + path.string() + "': vertex " + std::to_string(m.vertices.size()) +
+                  " is not finite");
+    m.vertices.emplace_back(p.x, p.y, p.z);
+  }
+  const int n = static_cast<int>(m.vertices.size());
+  for (size_t i = 0; i < pm.polygons.size(); ++i) {
+    const auto& idx = pm.polygons[i].vertices;
+    if (idx.size() < 3) continue;
+    for (size_t k = 0; k < idx.size(); ++k)
+      if (static_cast<int>(idx[k]) < 0 || static_cast<int>(idx[k]) >= n)
+        return fail("'" + path.string() + "': face " + std::to_string(i) +
+                    " refers to vertex " + std::to_string(idx[k]) + " of " + std::to_string(n));
+    for (size_t k = 1; k + 1 < idx.size(); ++k)  // fan-triangulate polygons
+      m.faces.emplace_back(idx[0], idx[k], idx[k + 1]);
+  }
+  if (m.vertices.empty()) return fail("'" + path.string() + "': PLY has no vertices");
+  return m;
+}
+
+Result<PointScan> read_ply_points(const fs::path& path) {
+  if (auto st = check_exists(path); !st) return std::unexpected(st.error());
+  pcl::PCLPointCloud2 blob;
+  pcl::PLYReader reader;
+  Eigen::Vector4f origin;
+  Eigen::Quaternionf orientation;
+  int version = 0;
+  if (reader.read(path.string(), blob, origin, orientation, version) < 0)
+    return fail("'" + path.string() + "': cannot parse PLY (truncated or corrupt?)");
+  pcl::PointCloud<pcl::PointXYZ> cloud;
+  pcl::fromPCLPointCloud2(blob, cloud);
+  PointScan scan;
+  const bool organized = cloud.height > 1;
+  if (organized) {
+    scan.grid_width = static_cast<int>(cloud.width);
+    scan.grid_height = static_cast<int>(cloud.height);
+    scan.grid_index.assign(cloud.size(), -1);
+  }
+  for (size_t i = 0; i < cloud.size(); ++i) {
+    const auto& p = cloud.points[i];
+    if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) continue;
+    if (organized) scan.grid_index[i] = static_cast<int32_t>(scan.points.size());
+    scan.points.emplace_back(p.x, p.y, p.z);
+  }
+  if (scan.points.empty()) return fail("'" + path.string() + "': PLY has no finite points");
+  return scan;
+}
+
+Status write_ply_mesh(const fs::path& path, const Mesh& mesh) {
+  return write_via_temp(path, [&](const fs::path& tmp) -> Status {
+    pcl::PointCloud<pcl::PointXYZ> cloud;
+    cloud.reserve(mesh.vertices.size());
+    for (const auto& v : mesh.vertices) cloud.emplace_back(v.x(), v.y(), v.z());
+    pcl::PolygonMesh pm;
+    pcl::toPCLPointCloud2(cloud, pm.cloud);
+    pm.polygons.resize(mesh.faces.size());
+    for (size_t i = 0; i < mesh.faces.size(); ++i)
+      pm.polygons[i].vertices = {mesh.faces[i][0], mesh.faces[i][1], mesh.faces[i][2]};
+    if (pcl::io::savePLYFileBinary(tmp.string(), pm) < 0) return fail("PCL could not write PLY");
+    return {};
+  });
+}
+
+Status write_ply_points(const fs::path& path, const PointScan& scan) {
+  return write_via_temp(path, [&](const fs::path& tmp) -> Status {
+    pcl::PointCloud<pcl::PointXYZ> cloud;
+    for (const auto& v : scan.points) cloud.emplace_back(v.x(), v.y(), v.z());
+    if (pcl::io::savePLYFileBinary(tmp.string(), cloud) < 0) return fail("PCL could not write PLY");
+    return {};
+  });
+}
+
+}  // namespace s2r

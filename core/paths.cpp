@@ -1,0 +1,36 @@
+#include "core/paths.h"
+
+#include <algorithm>
+#include <cstdlib>
+
+namespace s2r {
+namespace fs = std::filesystem;
+
+Result<fs::path> resolve_inside(const fs::path& root, std::string_view relative) {
+  if (relative.empty()) return fail("empty file name");
+  fs::path rel(relative);
+  if (rel.is_absolute()) return fail("path '" + std::string(relative) + "' is absolute; only paths inside the folder are allowed");
+  for (const auto& part : rel)
+    if (part == "..")
+      return fail("path '" + std::string(relative) + "' escapes the folder ('..')");
+  std::error_code ec;
+  fs::path base = fs::weakly_canonical(root, ec);
+  if (ec) return fail("cannot resolve folder '" + root.string() + "': " + ec.message());
+  fs::path full = fs::weakly_canonical(base / rel, ec);
+  if (ec) return fail("cannot resolve '" + std::string(relative) + "': " + ec.message());
+  auto [b, f] = std::mismatch(base.begin(), base.end(), full.begin(), full.end());
+  if (b != base.end())
+    return fail("path '" + std::string(relative) + "' resolves outside the folder (symbolic link?)");
+  return base / rel;
+}
+
+fs::path data_dir() {
+  if (const char* env = std::getenv("S2R_DATA"); env && *env) return env;
+#ifdef S2R_DEFAULT_DATA_DIR
+  return S2R_DEFAULT_DATA_DIR;
+#else
+  return "../shared/data";
+#endif
+}
+
+}  // namespace s2r
