@@ -54,25 +54,17 @@ TEST_F(FuzzySession, LoadsBackWithEveryFrame) {
 // Exact depth of view i, unprojected and reprojected into view j, lands
 // where view j's exact depth says the same surface point is.
 TEST_F(FuzzySession, GroundTruthDepthReprojectsBetweenViews) {
-  auto truth = *parse_json_file(*dir_ / "ground_truth" / "rig.json");
-  FieldReader t(truth, "rig.json");
-  auto K = [&](const char* key) {
-    FieldReader r = t.at(key);
-    Intrinsics k;
-    k.width = int(r.integer("width")); k.height = int(r.integer("height"));
-    k.fx = r.number("fx"); k.fy = r.number("fy"); k.cx = r.number("cx"); k.cy = r.number("cy");
-    for (size_t i = 0; i < 5; ++i) k.dist[i] = r.raw()["dist"][i].get<double>();
-    return k;
-  };
-  const Intrinsics Kc = K("color_intrinsics");
+  auto truth = load_synth_truth(*dir_);
+  ASSERT_TRUE(truth) << truth.error().message;
+  const Intrinsics& Kc = truth->color;
   double worst = 0, sum = 0;
   int n = 0;
   for (int i = 0; i < 24; i += 3) {
     const int j = (i + 1) % 24;  // neighbouring view, 15 degrees apart
     auto di = *read_image_float(*dir_ / "ground_truth" / "depth_color" / frame_file_name(i, "exr"));
     auto dj = *read_image_float(*dir_ / "ground_truth" / "depth_color" / frame_file_name(j, "exr"));
-    const auto wi = t.at("frames").index(size_t(i)).rigid("world_from_camera");
-    const auto wj = t.at("frames").index(size_t(j)).rigid("world_from_camera");
+    const auto& wi = truth->world_from_camera[size_t(i)];
+    const auto& wj = truth->world_from_camera[size_t(j)];
     const Eigen::Isometry3d j_from_i = wj.inverse() * wi;
     for (int y = 2; y < Kc.height - 2; y += 4)
       for (int x = 2; x < Kc.width - 2; x += 4) {
@@ -109,6 +101,8 @@ TEST_F(FuzzySession, GroundTruthDepthReprojectsBetweenViews) {
       }
   }
   ASSERT_GT(n, 500);
+  RecordProperty("reprojection_mean_px", std::to_string(sum / n));
+  RecordProperty("reprojection_max_px", std::to_string(worst));
   EXPECT_LT(sum / n, 0.1);
   // Bilinear interpolation across curved surfaces bounds the worst case.
   EXPECT_LT(worst, 0.5) << "mean " << sum / n << " over " << n;

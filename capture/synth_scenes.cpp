@@ -89,7 +89,7 @@ Result<Scene> bunny(const fs::path& data_dir) {
   Scene s;
   s.name = "bunny";
   s.surfaces.push_back({std::move(*mesh), Texture::kPatches});
-  s.table_from_camera = look_at({0, -0.42, 0.24}, {0, 0, 0.075}, 1.5);
+  s.table_from_camera = look_at({0, -0.32, 0.19}, {0, 0, 0.075}, 1.5);
   s.light_dir_lab = Vector3d(-0.3, -0.8, 0.6).normalized();
   return s;
 }

@@ -66,8 +66,9 @@ Result<double> ssim(const ImageU8& a, const ImageU8& b, const ImageU8* mask) {
   cv::Mat s1 = blur(I1.mul(I1)) - mu1_2;
   cv::Mat s2 = blur(I2.mul(I2)) - mu2_2;
   cv::Mat s12 = blur(I1.mul(I2)) - mu1_mu2;
-  cv::Mat num = (2 * mu1_mu2 + C1).mul(2 * s12 + C2);
-  cv::Mat den = (mu1_2 + mu2_2 + C1).mul(s1 + s2 + C2);
+  // Scalar::all keeps the constants in every channel (MatExpr + double would not).
+  cv::Mat num = (2 * mu1_mu2 + cv::Scalar::all(C1)).mul(2 * s12 + cv::Scalar::all(C2));
+  cv::Mat den = (mu1_2 + mu2_2 + cv::Scalar::all(C1)).mul(s1 + s2 + cv::Scalar::all(C2));
   cv::Mat map;
   cv::divide(num, den, map);
   double sum = 0;

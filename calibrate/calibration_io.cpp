@@ -1,0 +1,120 @@
+#include <cmath>
+#include <numbers>
+
+#include "calibrate/calibration.h"
+#include "core/atomic_file.h"
+#include "core/json_fields.h"
+
+namespace s2r {
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+namespace {
+
+json k_json(const Intrinsics& k) {
+  return {{"width", k.width}, {"height", k.height}, {"fx", k.fx}, {"fy", k.fy},
+          {"cx", k.cx},       {"cy", k.cy},         {"dist", k.dist}};
+}
+
+Intrinsics k_from(const FieldReader& r) {
+  Intrinsics k;
+  k.width = static_cast<int>(r.integer("width"));
+  k.height = static_cast<int>(r.integer("height"));
+  if (k.width <= 0 || k.height <= 0) r.error("width", "image size must be positive");
+  k.fx = r.positive("fx");
+  k.fy = r.positive("fy");
+  k.cx = r.number("cx");
+  k.cy = r.number("cy");
+  FieldReader d = r.at("dist");
+  if (d.array_size() != 5) d.error("expected 5 coefficients (k1 k2 p1 p2 k3)");
+  for (size_t i = 0; i < 5; ++i) {
+    if (!d.raw()[i].is_number() || !std::isfinite(d.raw()[i].get<double>()))
+      d.error("coefficient " + std::to_string(i) + " is not a finite number");
+    k.dist[i] = d.raw()[i].get<double>();
+  }
+  return k;
+}
+
+Eigen::Vector3d v3(const FieldReader& r, std::string_view key) {
+  FieldReader a = r.at(key);
+  if (a.array_size() != 3) a.error("expected 3 numbers");
+  Eigen::Vector3d v;
+  for (size_t i = 0; i < 3; ++i) {
+    if (!a.raw()[i].is_number() || !std::isfinite(a.raw()[i].get<double>()))
+      a.error("element " + std::to_string(i) + " is not a finite number");
+    v[static_cast<int>(i)] = a.raw()[i].get<double>();
+  }
+  return v;
+}
+
+json sensor_json(const SensorCalibration& s) {
+  return {{"intrinsics", k_json(s.intrinsics)}, {"rms_px", s.rms_px}, {"views", s.views}};
+}
+
+SensorCalibration sensor_from(const FieldReader& r) {
+  return {k_from(r.at("intrinsics")), r.number("rms_px"), static_cast<int>(r.integer_or("views", 0))};
+}
+
+}  // namespace
+
+Eigen::Isometry3d Calibration::world_from_camera_at(double angle_deg, Layout layout) const {
+  const TurntableAxis a = axis.value_or(TurntableAxis{});
+  const double sign = layout == Layout::kObjectCentre ? -1.0 : 1.0;
+  return rotation_about_axis(a.direction_camera, a.point_camera, sign * angle_deg * std::numbers::pi / 180);
+}
+
+Status save_calibration(const fs::path& path, const Calibration& c) {
+  json j = {{"format", "s2r.calibration"}, {"version", kCalibrationVersion}};
+  if (c.color) j["color"] = sensor_json(*c.color);
+  if (c.depth) j["depth"] = sensor_json(*c.depth);
+  if (c.color_from_depth)
+    j["color_from_depth"] = {{"transform", rigid_to_json(*c.color_from_depth)}, {"rms", c.color_from_depth_rms}};
+  if (c.axis) {
+    const auto& a = *c.axis;
+    j["turntable_axis"] = {
+        {"direction_camera", {a.direction_camera.x(), a.direction_camera.y(), a.direction_camera.z()}},
+        {"point_camera", {a.point_camera.x(), a.point_camera.y(), a.point_camera.z()}},
+        {"rms_m", a.rms_m},
+        {"step_angles_deg", a.step_angles_deg}};
+  }
+  return write_file_atomic(path, dump_json(j));
+}
+
+Result<Calibration> load_calibration(const fs::path& path) {
+  auto j = parse_json_file(path);
+  if (!j) return std::unexpected(j.error());
+  try {
+    FieldReader doc(*j, path.string());
+    check_format_header(doc, "s2r.calibration", kCalibrationVersion);
+    Calibration c;
+    if (doc.has("color")) c.color = sensor_from(doc.at("color"));
+    if (doc.has("depth")) c.depth = sensor_from(doc.at("depth"));
+    if (doc.has("color_from_depth")) {
+      FieldReader e = doc.at("color_from_depth");
+      c.color_from_depth = e.rigid("transform");
+      c.color_from_depth_rms = e.number("rms");
+    }
+    if (doc.has("turntable_axis")) {
+      FieldReader a = doc.at("turntable_axis");
+      TurntableAxis axis;
+      axis.direction_camera = v3(a, "direction_camera");
+      const double n = axis.direction_camera.norm();
+      if (std::abs(n - 1) > 1e-6) a.error("direction_camera", "must be a unit vector (norm " + std::to_string(n) + ")");
+      axis.point_camera = v3(a, "point_camera");
+      axis.rms_m = a.number("rms_m");
+      if (a.has("step_angles_deg")) {
+        FieldReader s = a.at("step_angles_deg");
+        for (size_t i = 0; i < s.array_size(); ++i) {
+          if (!s.raw()[i].is_number()) s.error("element " + std::to_string(i) + " is not a number");
+          axis.step_angles_deg.push_back(s.raw()[i].get<double>());
+        }
+      }
+      c.axis = axis;
+    }
+    return c;
+  } catch (const FormatError& e) {
+    return fail(e.what());
+  }
+}
+
+}  // namespace s2r

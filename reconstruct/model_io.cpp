@@ -1,0 +1,183 @@
+#include <zlib.h>
+
+#include <cmath>
+#include <cstring>
+
+#include "core/atomic_file.h"
+#include "core/json_fields.h"
+#include "core/paths.h"
+#include "reconstruct/model.h"
+
+namespace s2r {
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+namespace {
+
+constexpr char kMagic[4] = {'S', '2', 'R', 'B'};
+constexpr uint32_t kPayloadVersion = 1;
+constexpr size_t kHeader = 24, kFooter = 4;
+
+uint32_t crc(const std::string& bytes, size_t n) {
+  return static_cast<uint32_t>(::crc32(0L, reinterpret_cast<const Bytef*>(bytes.data()), static_cast<uInt>(n)));
+}
+
+template <class T>
+std::string pack(const std::vector<T>& records) {
+  static_assert(std::is_trivially_copyable_v<T>);
+  std::string b(kHeader + records.size() * sizeof(T) + kFooter, '\0');
+  const uint32_t ver = kPayloadVersion, size = sizeof(T);
+  const uint64_t count = records.size();
+  std::memcpy(b.data(), kMagic, 4);
+  std::memcpy(b.data() + 4, &ver, 4);
+  std::memcpy(b.data() + 8, &size, 4);
+  std::memcpy(b.data() + 16, &count, 8);
+  if (!records.empty()) std::memcpy(b.data() + kHeader, records.data(), records.size() * sizeof(T));
+  const uint32_t c = crc(b, b.size() - kFooter);
+  std::memcpy(b.data() + b.size() - kFooter, &c, 4);
+  return b;
+}
+
+template <class T>
+Result<std::vector<T>> unpack(const fs::path& path, uint64_t expected_count) {
+  auto bytes = read_file(path);
+  if (!bytes) return std::unexpected(bytes.error());
+  const std::string name = path.string();
+  if (bytes->size() < kHeader + kFooter) return fail(name + ": truncated (" + std::to_string(bytes->size()) + " bytes)");
+  if (std::memcmp(bytes->data(), kMagic, 4) != 0) return fail(name + ": not an s2r payload (bad magic)");
+  uint32_t ver, size;
+  uint64_t count;
+  std::memcpy(&ver, bytes->data() + 4, 4);
+  std::memcpy(&size, bytes->data() + 8, 4);
+  std::memcpy(&count, bytes->data() + 16, 8);
+  if (ver != kPayloadVersion) return fail(name + ": payload version " + std::to_string(ver) + " unsupported");
+  if (size != sizeof(T))
+    return fail(name + ": record size " + std::to_string(size) + ", expected " + std::to_string(sizeof(T)));
+  if (count != expected_count)
+    return fail(name + ": holds " + std::to_string(count) + " records but model.json says " + std::to_string(expected_count));
+  if (count > (bytes->size() - kHeader - kFooter) / sizeof(T) ||
+      bytes->size() != kHeader + count * sizeof(T) + kFooter)
+    return fail(name + ": truncated or padded (" + std::to_string(bytes->size()) + " bytes for " +
+                std::to_string(count) + " records)");
+  uint32_t stored;
+  std::memcpy(&stored, bytes->data() + bytes->size() - kFooter, 4);
+  if (stored != crc(*bytes, bytes->size() - kFooter)) return fail(name + ": checksum mismatch (corrupt)");
+  std::vector<T> out(count);
+  if (count) std::memcpy(out.data(), bytes->data() + kHeader, count * sizeof(T));
+  return out;
+}
+
+json k_json(const Intrinsics& k) {
+  return {{"width", k.width}, {"height", k.height}, {"fx", k.fx}, {"fy", k.fy},
+          {"cx", k.cx},       {"cy", k.cy},         {"dist", k.dist}};
+}
+
+Intrinsics k_from(const FieldReader& r) {
+  Intrinsics k;
+  k.width = static_cast<int>(r.integer("width"));
+  k.height = static_cast<int>(r.integer("height"));
+  k.fx = r.positive("fx");
+  k.fy = r.positive("fy");
+  k.cx = r.number("cx");
+  k.cy = r.number("cy");
+  FieldReader d = r.at("dist");
+  if (d.array_size() != 5) d.error("expected 5 coefficients");
+  for (size_t i = 0; i < 5; ++i) {
+    if (!d.raw()[i].is_number()) d.error("coefficient " + std::to_string(i) + " is not a number");
+    k.dist[i] = d.raw()[i].get<double>();
+  }
+  if (auto st = k.validate(r.path()); !st) r.error(st.error().message);
+  return k;
+}
+
+}  // namespace
+
+Status save_model(const fs::path& dir, const Model& m) {
+  json cams = json::array();
+  for (const auto& c : m.cameras)
+    cams.push_back({{"intrinsics", k_json(c.intrinsics)}, {"world_from_camera", rigid_to_json(c.world_from_camera)},
+                    {"texture", c.texture}, {"session_frame", c.session_frame}});
+  json doc = {{"format", "s2r.model"},
+              {"version", kModelVersion},
+              {"voxel_size_m", m.voxel_size_m},
+              {"bounds", {{"min", {m.bounds.min().x(), m.bounds.min().y(), m.bounds.min().z()}},
+                          {"max", {m.bounds.max().x(), m.bounds.max().y(), m.bounds.max().z()}}}},
+              {"cameras", cams},
+              {"payloads", {{"facets", {{"file", "facets.bin"}, {"records", m.facets.size()}}},
+                            {"facet_cameras", {{"file", "facet_cameras.bin"}, {"records", m.facet_cameras.size()}}}}}};
+  if (m.patch_mesh) doc["patch_mesh"] = *m.patch_mesh;
+  if (m.environment) doc["environment"] = *m.environment;
+  // Payloads first, header last: a model.json always describes complete payloads.
+  if (auto st = write_file_atomic(dir / "facets.bin", pack(m.facets)); !st) return st;
+  if (auto st = write_file_atomic(dir / "facet_cameras.bin", pack(m.facet_cameras)); !st) return st;
+  return write_file_atomic(dir / "model.json", dump_json(doc));
+}
+
+Result<Model> load_model(const fs::path& dir) {
+  auto j = parse_json_file(dir / "model.json");
+  if (!j) return std::unexpected(j.error());
+  Model m;
+  try {
+    FieldReader doc(*j, (dir / "model.json").string());
+    check_format_header(doc, "s2r.model", kModelVersion);
+    m.voxel_size_m = doc.positive("voxel_size_m");
+    FieldReader b = doc.at("bounds");
+    for (const char* key : {"min", "max"}) {
+      FieldReader v = b.at(key);
+      if (v.array_size() != 3) v.error("expected 3 numbers");
+      Eigen::Vector3d p;
+      for (size_t i = 0; i < 3; ++i) {
+        if (!v.raw()[i].is_number() || !std::isfinite(v.raw()[i].get<double>())) v.error("not finite");
+        p[static_cast<int>(i)] = v.raw()[i].get<double>();
+      }
+      (std::string(key) == "min" ? m.bounds.min() : m.bounds.max()) = p;
+    }
+    FieldReader cams = doc.at("cameras");
+    for (size_t i = 0; i < cams.array_size(); ++i) {
+      FieldReader c = cams.index(i);
+      ModelCamera mc;
+      mc.intrinsics = k_from(c.at("intrinsics"));
+      mc.world_from_camera = c.rigid("world_from_camera");
+      mc.texture = c.string_or("texture", "");
+      mc.session_frame = static_cast<int>(c.integer_or("session_frame", -1));
+      if (!mc.texture.empty()) {
+        auto p = resolve_inside(dir, mc.texture);
+        if (!p) c.error("texture", p.error().message);
+        if (!fs::exists(*p)) c.error("texture", "'" + mc.texture + "': file not found");
+      }
+      m.cameras.push_back(mc);
+    }
+    FieldReader pay = doc.at("payloads");
+    const uint64_t nf = static_cast<uint64_t>(pay.at("facets").integer("records"));
+    const uint64_t nc = static_cast<uint64_t>(pay.at("facet_cameras").integer("records"));
+    if (doc.has("patch_mesh")) m.patch_mesh = doc.string("patch_mesh");
+    if (doc.has("environment")) m.environment = doc.string("environment");
+    auto facets = unpack<FacetRecord>(dir / "facets.bin", nf);
+    if (!facets) return std::unexpected(facets.error());
+    auto fc = unpack<uint32_t>(dir / "facet_cameras.bin", nc);
+    if (!fc) return std::unexpected(fc.error());
+    m.facets = std::move(*facets);
+    m.facet_cameras = std::move(*fc);
+  } catch (const FormatError& e) {
+    return fail(e.what());
+  }
+  // Cross-checks between payloads.
+  const std::string fb = (dir / "facets.bin").string();
+  for (size_t i = 0; i < m.facets.size(); ++i) {
+    const auto& f = m.facets[i];
+    const std::string at = fb + ": facet " + std::to_string(i) + ": ";
+    for (float v : {f.center[0], f.center[1], f.center[2], f.size, f.normal[0], f.normal[1], f.normal[2], f.reliability})
+      if (!std::isfinite(v)) return fail(at + "non-finite value");
+    if (!(f.size > 0)) return fail(at + "size must be > 0");
+    if (uint64_t(f.first_camera) + f.camera_count > m.facet_cameras.size())
+      return fail(at + "camera range [" + std::to_string(f.first_camera) + ", +" + std::to_string(f.camera_count) +
+                  ") exceeds facet_cameras (" + std::to_string(m.facet_cameras.size()) + ")");
+  }
+  for (size_t i = 0; i < m.facet_cameras.size(); ++i)
+    if (m.facet_cameras[i] >= m.cameras.size())
+      return fail((dir / "facet_cameras.bin").string() + ": entry " + std::to_string(i) + " names camera " +
+                  std::to_string(m.facet_cameras[i]) + " of " + std::to_string(m.cameras.size()));
+  return m;
+}
+
+}  // namespace s2r

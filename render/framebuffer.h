@@ -1,0 +1,33 @@
+// An offscreen render target (RGBA8 colour + 24-bit depth) that both the
+// headless renderer and the window draw into.
+#pragma once
+
+#include "core/image.h"
+#include "core/result.h"
+
+namespace s2r {
+
+class Framebuffer {
+ public:
+  static Result<Framebuffer> create(int width, int height);  // needs a current context
+  Framebuffer(Framebuffer&&) noexcept;
+  Framebuffer& operator=(Framebuffer&&) noexcept;
+  Framebuffer(const Framebuffer&) = delete;
+  ~Framebuffer();
+
+  void bind() const;  // also sets the viewport
+  void clear(float r, float g, float b) const;
+  // Pixels top row first (image convention), RGB.
+  ImageU8 read_rgb() const;
+  // Copy to the default framebuffer (a window's back buffer) of size w x h.
+  void blit_to_screen(int w, int h) const;
+  int width() const { return width_; }
+  int height() const { return height_; }
+
+ private:
+  Framebuffer() = default;
+  unsigned fbo_ = 0, color_ = 0, depth_ = 0;
+  int width_ = 0, height_ = 0;
+};
+
+}  // namespace s2r
