@@ -1,0 +1,76 @@
+#include "core/image_metrics.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+namespace s2r {
+namespace {
+
+TEST(Psnr, HandComputedValues) {
+  ImageU8 a(8, 8, 1, 100), b(8, 8, 1, 101);
+  EXPECT_NEAR(*psnr(a, b), 10 * std::log10(255.0 * 255.0 / 1.0), 1e-9);  // MSE 1 -> 48.1308 dB
+  EXPECT_NEAR(*psnr(a, b), 48.1308036, 1e-6);
+  EXPECT_TRUE(std::isinf(*psnr(a, a)));
+  // Mask: outside differs by 50 (ignored), inside by 2 -> MSE 4.
+  ImageU8 c = a, mask(8, 8, 1, 0);
+  for (int y = 0; y < 8; ++y)
+    for (int x = 0; x < 8; ++x) {
+      const bool in = x < 4;
+      mask.at(x, y) = in ? 255 : 0;
+      c.at(x, y) = static_cast<uint8_t>(in ? 102 : 150);
+    }
+  EXPECT_NEAR(*psnr(a, c, &mask), 10 * std::log10(255.0 * 255.0 / 4.0), 1e-9);
+  // Colour: channel errors 0, 3, 6 -> MSE (0 + 9 + 36) / 3 = 15.
+  ImageU8 r(4, 4, 3, 50), s(4, 4, 3, 50);
+  for (size_t i = 0; i < s.data.size(); ++i) s.data[i] = static_cast<uint8_t>(50 + 3 * (i % 3));
+  EXPECT_NEAR(*psnr(r, s), 10 * std::log10(255.0 * 255.0 / 15.0), 1e-9);
+}
+
+TEST(Psnr, BadInputIsAnError) {
+  ImageU8 a(8, 8, 1), b(8, 7, 1), empty_mask(8, 8, 1, 0);
+  EXPECT_FALSE(psnr(a, b));
+  EXPECT_FALSE(psnr(a, a, &empty_mask));
+  EXPECT_FALSE(psnr(ImageU8{}, ImageU8{}));
+}
+
+// For constant images the variances vanish and SSIM reduces to the luminance
+// term (2 m1 m2 + C1) / (m1^2 + m2^2 + C1).
+double ssim_constants(double m1, double m2) {
+  const double C1 = (0.01 * 255) * (0.01 * 255);
+  return (2 * m1 * m2 + C1) / (m1 * m1 + m2 * m2 + C1);
+}
+
+TEST(Ssim, HandComputedValues) {
+  ImageU8 a(24, 24, 1, 100), b(24, 24, 1, 140);
+  EXPECT_NEAR(*ssim(a, a), 1.0, 1e-12);
+  EXPECT_NEAR(*ssim(a, b), ssim_constants(100, 140), 1e-9);
+  // Per channel, then averaged (every channel gets the constants).
+  ImageU8 c(24, 24, 3), d(24, 24, 3);
+  const int m1[3] = {10, 100, 200}, m2[3] = {20, 100, 120};
+  for (int y = 0; y < 24; ++y)
+    for (int x = 0; x < 24; ++x)
+      for (int k = 0; k < 3; ++k) {
+        c.at(x, y, k) = static_cast<uint8_t>(m1[k]);
+        d.at(x, y, k) = static_cast<uint8_t>(m2[k]);
+      }
+  const double want = (ssim_constants(10, 20) + ssim_constants(100, 100) + ssim_constants(200, 120)) / 3;
+  EXPECT_NEAR(*ssim(c, d), want, 1e-9);
+}
+
+TEST(Ssim, StructureLowersTheScoreAndMaskSelects) {
+  ImageU8 a(32, 32, 1), b(32, 32, 1), mask(32, 32, 1, 0);
+  for (int y = 0; y < 32; ++y)
+    for (int x = 0; x < 32; ++x) {
+      a.at(x, y) = static_cast<uint8_t>((x / 4 + y / 4) % 2 ? 200 : 50);
+      b.at(x, y) = x < 16 ? a.at(x, y) : static_cast<uint8_t>(255 - a.at(x, y));
+      mask.at(x, y) = x < 8 ? 255 : 0;
+    }
+  const double whole = *ssim(a, b);
+  EXPECT_LT(whole, 0.5);
+  EXPECT_GT(whole, -1.0);
+  EXPECT_NEAR(*ssim(a, b, &mask), 1.0, 1e-9);  // the masked half is identical (window stays left of x=16)
+}
+
+}  // namespace
+}  // namespace s2r
