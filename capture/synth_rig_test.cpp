@@ -13,7 +13,7 @@ namespace s2r {
 namespace {
 namespace fs = std::filesystem;
 
-// The acceptance case of the rig: a fuzzy object, 24 views, seed 7.
+// The acceptance case of the rig, exactly `s2r synth --scene fuzzy --views 24 --seed 7`.
 class FuzzySession : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
@@ -23,8 +23,6 @@ class FuzzySession : public ::testing::Test {
     o.scene = "fuzzy";
     o.views = 24;
     o.seed = 7;
-    o.width = 320;  // half size keeps the test fast; the geometry is the same
-    o.height = 240;
     auto r = synth_session(o, *dir_);
     ASSERT_TRUE(r) << r.error().message;
     report_ = new Report(*r);
@@ -87,6 +85,8 @@ TEST_F(FuzzySession, GroundTruthDepthReprojectsBetweenViews) {
           const double zs[] = {z00, z10, z01, z11};
           const double lo = *std::min_element(zs, zs + 4), hi = *std::max_element(zs, zs + 4);
           if (hi - lo > 0.002) return -1.0;  // discontinuity: not a surface sample
+          // Bilinear interpolation is exact only on a planar patch: skip creases.
+          if (std::abs(z00 + z11 - z10 - z01) > 1e-5) return -1.0;
           return (1 - a) * (1 - b) * z00 + a * (1 - b) * z10 + (1 - a) * b * z01 + a * b * z11;
         };
         const double zb = lerp(q->x(), q->y());
@@ -103,9 +103,9 @@ TEST_F(FuzzySession, GroundTruthDepthReprojectsBetweenViews) {
   ASSERT_GT(n, 500);
   RecordProperty("reprojection_mean_px", std::to_string(sum / n));
   RecordProperty("reprojection_max_px", std::to_string(worst));
-  EXPECT_LT(sum / n, 0.1);
+  EXPECT_LT(sum / n, 0.01);
   // Bilinear interpolation across curved surfaces bounds the worst case.
-  EXPECT_LT(worst, 0.5) << "mean " << sum / n << " over " << n;
+  EXPECT_LT(worst, 0.05) << "mean " << sum / n << " over " << n;
 }
 
 TEST_F(FuzzySession, DepthShowsTheSensorModel) {

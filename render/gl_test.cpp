@@ -108,27 +108,34 @@ class XServer {
       reason_ = "Xvfb is not installed (apt-get install xvfb)";
       return;
     }
-    int fds[2];
-    if (pipe(fds) != 0) return;
-    pid_ = fork();
-    if (pid_ == 0) {
-      close(fds[0]);
-      const std::string fd = std::to_string(fds[1]);
-      execl(xvfb, "Xvfb", "-displayfd", fd.c_str(), "-screen", "0", "320x240x24", "-nolisten", "tcp",
-            static_cast<char*>(nullptr));
-      _exit(127);
+    // A display number of our own; ready when its socket appears.
+    for (int attempt = 0; attempt < 20 && !ok_; ++attempt) {
+      const int n = 100 + (getpid() * 7 + attempt * 13) % 800;
+      if (std::filesystem::exists("/tmp/.X" + std::to_string(n) + "-lock")) continue;
+      const std::string display = ":" + std::to_string(n);
+      pid_ = fork();
+      if (pid_ == 0) {
+        execl(xvfb, "Xvfb", display.c_str(), "-screen", "0", "320x240x24", "-nolisten", "tcp",
+              static_cast<char*>(nullptr));
+        _exit(127);
+      }
+      const std::string socket = "/tmp/.X11-unix/X" + std::to_string(n);
+      for (int i = 0; i < 100; ++i) {  // up to 10 s
+        if (std::filesystem::exists(socket)) {
+          setenv("DISPLAY", display.c_str(), 1);
+          ok_ = true;
+          break;
+        }
+        if (waitpid(pid_, nullptr, WNOHANG) == pid_) break;  // died: try another number
+        usleep(100000);
+      }
+      if (!ok_) {
+        kill(pid_, SIGTERM);
+        waitpid(pid_, nullptr, 0);
+        pid_ = -1;
+      }
     }
-    close(fds[1]);
-    char buf[16] = {};
-    ssize_t n = read(fds[0], buf, sizeof buf - 1);  // Xvfb writes the display number when ready
-    close(fds[0]);
-    if (n <= 0) {
-      reason_ = "Xvfb did not start";
-      return;
-    }
-    std::string display = ":" + std::string(buf, strcspn(buf, "\n"));
-    setenv("DISPLAY", display.c_str(), 1);
-    ok_ = true;
+    if (!ok_) reason_ = "Xvfb did not start";
   }
   ~XServer() {
     if (pid_ > 0) {
