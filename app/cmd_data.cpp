@@ -25,6 +25,8 @@ void add_synth(CLI::App& app) {
   sub->add_option("--height", o->height, "image height")->capture_default_str();
   sub->add_option("--spp", o->spp, "colour samples per pixel (1 or 4)")->capture_default_str();
   sub->add_option("--depth-noise", o->depth_noise_k, "depth sigma = k z^2 (m)")->capture_default_str();
+  sub->add_option("--exposure", o->exposure, "colour gain (clips above 1)")->capture_default_str();
+  sub->add_option("--color-noise", o->color_noise, "colour noise sigma, 8-bit levels")->capture_default_str();
   sub->add_option("--dropout", o->dropout, "random depth hole probability")->capture_default_str();
   sub->add_option("--grazing-deg", o->grazing_deg, "no depth beyond this incidence angle")->capture_default_str();
   sub->add_option("--table-error-deg", o->table_error_deg, "table turns this much less per step")->capture_default_str();

@@ -69,6 +69,7 @@ Status SynthOptions::validate() const {
   if (!(depth_noise_k >= 0) || !(depth_unit_m > 0) || !(dropout >= 0 && dropout <= 1))
     return fail("depth noise must be >= 0, unit > 0, dropout in [0, 1]");
   if (!(grazing_deg > 0 && grazing_deg <= 90)) return fail("grazing angle must be in (0, 90]");
+  if (!(exposure > 0 && exposure < 1000) || !(color_noise >= 0)) return fail("exposure must be in (0, 1000), colour noise >= 0");
   return {};
 }
 
@@ -298,7 +299,7 @@ SynthView SynthRig::render(int view) const {
         const Vector3f d = wc.linear() * m.color_sub[pix * spp + k];
         sum += m.shade(m.trace(oc, d), oc, d, light);
       }
-      sum /= float(spp);
+      sum *= static_cast<float>(m.opt.exposure) / float(spp);
       for (int c = 0; c < 3; ++c) {
         double v = std::pow(std::clamp(double(sum[c]), 0.0, 1.0), 1 / 2.2) * 255.0;
         v += m.opt.color_noise * gaussian(hash(seed, uint64_t(view), pix, 100 + uint64_t(c)));
@@ -422,7 +423,7 @@ Result<Report> synth_session(const SynthOptions& options, const fs::path& out) {
   header.name = out.filename().string();
   header.source = "synth:" + options.scene;
   header.layout = r.layout();
-  header.color = ColorSensor{"synth", options.scene, "RGB8", r.color_intrinsics(), 10000, 1};
+  header.color = ColorSensor{"synth", options.scene, "RGB8", r.color_intrinsics(), 10000 * options.exposure, 1};
   DepthSensor ds;
   ds.driver = "synth";
   ds.device = options.scene;
@@ -469,7 +470,7 @@ Result<Report> synth_session(const SynthOptions& options, const fs::path& out) {
     f.table_angle_commanded_deg = r.commanded_angle_deg(i);
     f.table_angle_reported_deg = r.commanded_angle_deg(i);
     f.timestamp_ns = int64_t(i) * 2'000'000'000LL;
-    f.exposure_us = 10000;
+    f.exposure_us = 10000 * options.exposure;
     if (auto st = writer->add_frame(f, &v.color, &v.depth); !st) return std::unexpected(st.error());
     frames.push_back({{"index", i}, {"table_angle_true_deg", r.true_angle_deg(i)},
                       {"world_from_camera", rigid_to_json(r.world_from_camera(i))},
@@ -509,6 +510,7 @@ Result<Report> synth_session(const SynthOptions& options, const fs::path& out) {
   rep.params["width"] = double(options.width);
   rep.params["height"] = double(options.height);
   rep.params["spp"] = double(options.spp);
+  rep.params["exposure"] = options.exposure;
   return rep;
 }
 

@@ -40,6 +40,7 @@ struct SynthOptions {
   double grazing_deg = 78;
   double dropout = 0;         // probability of a random depth hole
   double color_noise = 1.0;   // sigma in 8-bit levels
+  double exposure = 1.0;      // radiance gain before the 8-bit response (clips above 1)
   double table_error_deg = 0; // table turns this much less than commanded per step
   int threads = 0;            // 0 = all cores
   std::filesystem::path data_dir;  // empty = s2r::data_dir()

@@ -4,10 +4,12 @@
 #include <unistd.h>
 
 #include <cmath>
+#include <random>
 
 #include "core/atomic_file.h"
 #include "core/image_io.h"
 #include "core/json_fields.h"
+#include "core/progress.h"
 
 namespace s2r {
 namespace {
@@ -20,6 +22,7 @@ class FuzzySession : public ::testing::Test {
     dir_ = new fs::path(fs::temp_directory_path() / ("s2r_fuzzy_" + std::to_string(::getpid())));
     fs::remove_all(*dir_);
     SynthOptions o;
+    set_progress_enabled(false);
     o.scene = "fuzzy";
     o.views = 24;
     o.seed = 7;
@@ -129,6 +132,68 @@ TEST_F(FuzzySession, DepthShowsTheSensorModel) {
   EXPECT_GT(double(surface_valid) / surface, 0.6) << "solid surfaces mostly measured";
   EXPECT_GT(report_->errors.at("depth_rms_mm"), 0.2);
   EXPECT_LT(report_->errors.at("depth_rms_mm"), 2.0);
+}
+
+// Walks truncations and corrupted byte ranges of the rig's real session.json,
+// and truncations of its images: each load ends in a session or a clear error.
+TEST_F(FuzzySession, CorruptedFilesGiveClearErrorsNeverACrash) {
+  const fs::path copy = dir_->string() + "_walk";
+  fs::remove_all(copy);
+  fs::copy(*dir_, copy, fs::copy_options::recursive);
+  fs::remove(copy / "session.journal");  // the journal alone would restore every frame
+  const auto text = *read_file(copy / "session.json");
+  ASSERT_GT(text.size(), 4000u);
+  size_t rejected = 0, loads = 0;
+  for (size_t n = 0; n < text.size(); n += 1 + n / 400) {
+    ASSERT_TRUE(write_file_atomic(copy / "session.json", text.substr(0, n)));
+    auto s = load_session(copy, {.check_images = false});
+    ++loads;
+    if (!s) {
+      ++rejected;
+      ASSERT_NE(s.error().message.find("session.json"), std::string::npos) << s.error().message;
+    }
+  }
+  EXPECT_EQ(rejected, loads);  // no proper prefix of the document is a document
+  std::mt19937 rng(3);
+  for (int trial = 0; trial < 1500; ++trial) {
+    std::string bad = text;
+    const size_t at = rng() % bad.size(), len = 1 + rng() % 32;
+    for (size_t k = at; k < std::min(bad.size(), at + len); ++k) bad[k] = static_cast<char>(rng() % 256);
+    ASSERT_TRUE(write_file_atomic(copy / "session.json", bad));
+    auto s = load_session(copy, {.check_images = trial % 10 == 0});
+    if (!s) {
+      EXPECT_FALSE(s.error().message.empty());
+    }
+  }
+  ASSERT_TRUE(write_file_atomic(copy / "session.json", text));
+  auto s = load_session(copy);
+  ASSERT_TRUE(s) << s.error().message;
+  for (const char* kind : {"color", "depth"}) {
+    const fs::path img = copy / kind / "0011.png";
+    const auto bytes = *read_file(img);
+    for (size_t keep : {size_t(0), size_t(7), size_t(33), bytes.size() / 3, bytes.size() - 30}) {
+      ASSERT_TRUE(write_file_atomic(img, bytes.substr(0, keep)));
+      const bool color = std::string(kind) == "color";
+      std::string message;
+      if (color) {
+        auto r = load_color(*s, s->frames[11]);
+        ASSERT_FALSE(r) << kind << " kept " << keep;
+        message = r.error().message;
+      } else {
+        auto r = load_depth(*s, s->frames[11]);
+        ASSERT_FALSE(r) << kind << " kept " << keep;
+        message = r.error().message;
+      }
+      EXPECT_NE(message.find("0011.png"), std::string::npos) << message;
+      if (keep > 33) continue;  // the session loader reads headers only; decoding is load_color/--decode
+      auto loaded = load_session(copy);
+      ASSERT_FALSE(loaded) << kind << " kept " << keep;
+      EXPECT_NE(loaded.error().message.find(std::string("frames[11].") + kind), std::string::npos)
+          << loaded.error().message;
+    }
+    ASSERT_TRUE(write_file_atomic(img, bytes));
+  }
+  fs::remove_all(copy);
 }
 
 TEST(SynthRig, DeterministicForASeedWhateverTheThreads) {
