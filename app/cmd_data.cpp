@@ -100,11 +100,11 @@ void add_data_commands(CLI::App& app) {
   add_synth(app);
   add_import(app);
   add_inspect(app);
-  add_not_yet(app, "devices", "List cameras, depth nodes and serial ports", "capture issue");
-  add_not_yet(app, "capture", "Run a capture session (--sim | --replay | real devices)", "capture issue");
-  add_not_yet(app, "calibrate", "Intrinsics, depth-to-colour, turntable axis", "calibration issue");
-  add_not_yet(app, "register", "Register all views at once", "registration issue");
-  add_not_yet(app, "reconstruct", "Fusion, microfacets, octree, per-camera depth", "reconstruction issue");
+  add_not_yet(app, "devices", "List cameras, depth nodes and serial ports");
+  add_not_yet(app, "capture", "Run a capture session (--sim | --replay | real devices)");
+  add_not_yet(app, "calibrate", "Intrinsics, depth-to-colour, turntable axis");
+  add_not_yet(app, "register", "Register all views at once");
+  add_not_yet(app, "reconstruct", "Fusion, microfacets, octree, per-camera depth");
 }
 
 }  // namespace s2r::cli

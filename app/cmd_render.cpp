@@ -31,10 +31,10 @@ void add_preview(CLI::App& app) {
 
 void add_render_commands(CLI::App& app) {
   add_preview(app);
-  add_not_yet(app, "render", "Offscreen image of a model", "renderer issue");
-  add_not_yet(app, "eval", "PSNR/SSIM against held-out photos", "renderer issue");
-  add_not_yet(app, "view", "Interactive viewer", "renderer issue");
-  add_not_yet(app, "raytrace", "CPU ray tracer with visual-field LOD", "ray tracer issue");
-  add_not_yet(app, "envmap", "Multi-scale environment map", "environment map issue");
+  add_not_yet(app, "render", "Offscreen image of a model");
+  add_not_yet(app, "eval", "PSNR/SSIM against held-out photos");
+  add_not_yet(app, "view", "Interactive viewer");
+  add_not_yet(app, "raytrace", "CPU ray tracer with visual-field LOD");
+  add_not_yet(app, "envmap", "Multi-scale environment map");
 }
 }  // namespace s2r::cli

@@ -24,7 +24,6 @@ void add_bench_commands(CLI::App& app);   // bench
 int finish(const Report& report, const std::filesystem::path& path);
 int error(const std::string& message);
 // A DESIGN.md command that later work provides.
-void add_not_yet(CLI::App& app, const std::string& name, const std::string& what,
-                 const std::string& issue);
+void add_not_yet(CLI::App& app, const std::string& name, const std::string& what);
 
 }  // namespace s2r::cli

@@ -28,13 +28,12 @@ int error(const std::string& message) {
   return 1;
 }
 
-void add_not_yet(CLI::App& app, const std::string& name, const std::string& what,
-                 const std::string& issue) {
+void add_not_yet(CLI::App& app, const std::string& name, const std::string& what) {
   auto* sub = app.add_subcommand(name, what + " (not yet available)");
   sub->allow_extras();
-  sub->callback([name, issue] {
-    set_runner([name, issue] {
-      std::fprintf(stderr, "s2r %s: not yet available in this build (%s)\n", name.c_str(), issue.c_str());
+  sub->callback([name] {
+    set_runner([name] {
+      std::fprintf(stderr, "s2r %s: not yet available in this build\n", name.c_str());
       return 2;
     });
   });

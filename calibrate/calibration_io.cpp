@@ -11,48 +11,12 @@ using nlohmann::json;
 
 namespace {
 
-json k_json(const Intrinsics& k) {
-  return {{"width", k.width}, {"height", k.height}, {"fx", k.fx}, {"fy", k.fy},
-          {"cx", k.cx},       {"cy", k.cy},         {"dist", k.dist}};
-}
-
-Intrinsics k_from(const FieldReader& r) {
-  Intrinsics k;
-  k.width = static_cast<int>(r.integer("width"));
-  k.height = static_cast<int>(r.integer("height"));
-  if (k.width <= 0 || k.height <= 0) r.error("width", "image size must be positive");
-  k.fx = r.positive("fx");
-  k.fy = r.positive("fy");
-  k.cx = r.number("cx");
-  k.cy = r.number("cy");
-  FieldReader d = r.at("dist");
-  if (d.array_size() != 5) d.error("expected 5 coefficients (k1 k2 p1 p2 k3)");
-  for (size_t i = 0; i < 5; ++i) {
-    if (!d.raw()[i].is_number() || !std::isfinite(d.raw()[i].get<double>()))
-      d.error("coefficient " + std::to_string(i) + " is not a finite number");
-    k.dist[i] = d.raw()[i].get<double>();
-  }
-  return k;
-}
-
-Eigen::Vector3d v3(const FieldReader& r, std::string_view key) {
-  FieldReader a = r.at(key);
-  if (a.array_size() != 3) a.error("expected 3 numbers");
-  Eigen::Vector3d v;
-  for (size_t i = 0; i < 3; ++i) {
-    if (!a.raw()[i].is_number() || !std::isfinite(a.raw()[i].get<double>()))
-      a.error("element " + std::to_string(i) + " is not a finite number");
-    v[static_cast<int>(i)] = a.raw()[i].get<double>();
-  }
-  return v;
-}
-
 json sensor_json(const SensorCalibration& s) {
-  return {{"intrinsics", k_json(s.intrinsics)}, {"rms_px", s.rms_px}, {"views", s.views}};
+  return {{"intrinsics", intrinsics_to_json(s.intrinsics)}, {"rms_px", s.rms_px}, {"views", s.views}};
 }
 
 SensorCalibration sensor_from(const FieldReader& r) {
-  return {k_from(r.at("intrinsics")), r.number("rms_px"), static_cast<int>(r.integer_or("views", 0))};
+  return {intrinsics_from(r.at("intrinsics")), r.number("rms_px"), static_cast<int>(r.integer_or("views", 0))};
 }
 
 }  // namespace
@@ -97,10 +61,10 @@ Result<Calibration> load_calibration(const fs::path& path) {
     if (doc.has("turntable_axis")) {
       FieldReader a = doc.at("turntable_axis");
       TurntableAxis axis;
-      axis.direction_camera = v3(a, "direction_camera");
+      axis.direction_camera = vec3_from(a, "direction_camera");
       const double n = axis.direction_camera.norm();
       if (std::abs(n - 1) > 1e-6) a.error("direction_camera", "must be a unit vector (norm " + std::to_string(n) + ")");
-      axis.point_camera = v3(a, "point_camera");
+      axis.point_camera = vec3_from(a, "point_camera");
       axis.rms_m = a.number("rms_m");
       if (a.has("step_angles_deg")) {
         FieldReader s = a.at("step_angles_deg");

@@ -17,33 +17,6 @@ namespace {
 
 constexpr const char* kFormat = "s2r.session";
 
-json intrinsics_to_json(const Intrinsics& k) {
-  return {{"width", k.width}, {"height", k.height}, {"fx", k.fx}, {"fy", k.fy},
-          {"cx", k.cx},       {"cy", k.cy},         {"dist", k.dist}};
-}
-
-Intrinsics intrinsics_from(const FieldReader& r) {
-  Intrinsics k;
-  k.width = static_cast<int>(r.integer("width"));
-  k.height = static_cast<int>(r.integer("height"));
-  if (k.width <= 0 || k.height <= 0) r.error("width", "image size must be positive");
-  k.fx = r.positive("fx");
-  k.fy = r.positive("fy");
-  k.cx = r.number("cx");
-  k.cy = r.number("cy");
-  if (r.has("dist")) {
-    FieldReader d = r.at("dist");
-    if (d.array_size() != 5) d.error("expected 5 coefficients (k1 k2 p1 p2 k3)");
-    for (size_t i = 0; i < 5; ++i) {
-      const json& v = d.raw()[i];
-      if (!v.is_number() || !std::isfinite(v.get<double>()))
-        d.error("coefficient " + std::to_string(i) + " is not a finite number");
-      k.dist[i] = v.get<double>();
-    }
-  }
-  return k;
-}
-
 json frame_to_json(const Frame& f) {
   json j = {{"index", f.index},
             {"table_angle_commanded_deg", f.table_angle_commanded_deg},
@@ -215,7 +188,8 @@ Status merge_journal(Session& s, const SessionLoadOptions& opts) {
         fr.error("frame.index", "expected " + std::to_string(s.frames.size()) + ", got " +
                                     std::to_string(f.index) + " (gap in the journal)");
       check_file_field(s, fr, "color", f.color, opts.check_images, s.color_intrinsics(f));
-      check_file_field(s, fr, "depth", f.depth, opts.check_images, std::nullopt);
+      check_file_field(s, fr, "depth", f.depth, opts.check_images,
+                       s.depth ? std::optional<Intrinsics>(s.depth->intrinsics) : std::nullopt);
       s.frames.push_back(std::move(f));
     } catch (const FormatError& e) {
       return fail(e.what());

@@ -359,31 +359,6 @@ Status SynthRig::write_geometry(const fs::path& dir) const {
 
 namespace {
 
-nlohmann::json intrinsics_json(const Intrinsics& k) {
-  return {{"width", k.width}, {"height", k.height}, {"fx", k.fx}, {"fy", k.fy},
-          {"cx", k.cx},       {"cy", k.cy},         {"dist", k.dist}};
-}
-
-Intrinsics intrinsics_from_json(const FieldReader& r) {
-  Intrinsics k;
-  k.width = static_cast<int>(r.integer("width"));
-  k.height = static_cast<int>(r.integer("height"));
-  k.fx = r.positive("fx");
-  k.fy = r.positive("fy");
-  k.cx = r.number("cx");
-  k.cy = r.number("cy");
-  FieldReader d = r.at("dist");
-  if (d.array_size() != 5) d.error("expected 5 coefficients");
-  for (size_t i = 0; i < 5; ++i) k.dist[i] = d.raw()[i].get<double>();
-  return k;
-}
-
-Eigen::Vector3d vec3(const FieldReader& r, std::string_view key) {
-  FieldReader a = r.at(key);
-  if (a.array_size() != 3) a.error("expected 3 numbers");
-  return {a.raw()[0].get<double>(), a.raw()[1].get<double>(), a.raw()[2].get<double>()};
-}
-
 }  // namespace
 
 Result<SynthTruth> load_synth_truth(const fs::path& session_dir) {
@@ -396,11 +371,11 @@ Result<SynthTruth> load_synth_truth(const fs::path& session_dir) {
     SynthTruth t;
     t.scene = doc.string("scene");
     t.layout = doc.string("layout") == "camera_centre" ? Layout::kCameraCentre : Layout::kObjectCentre;
-    t.color = intrinsics_from_json(doc.at("color_intrinsics"));
-    t.depth = intrinsics_from_json(doc.at("depth_intrinsics"));
+    t.color = intrinsics_from(doc.at("color_intrinsics"));
+    t.depth = intrinsics_from(doc.at("depth_intrinsics"));
     t.color_from_depth = doc.rigid("color_from_depth");
-    t.axis_dir_camera = vec3(doc, "axis_dir_camera");
-    t.axis_point_camera = vec3(doc, "axis_point_camera");
+    t.axis_dir_camera = vec3_from(doc, "axis_dir_camera");
+    t.axis_point_camera = vec3_from(doc, "axis_point_camera");
     FieldReader frames = doc.at("frames");
     for (size_t i = 0; i < frames.array_size(); ++i) {
       t.true_angle_deg.push_back(frames.index(i).number("table_angle_true_deg"));
@@ -483,8 +458,8 @@ Result<Report> synth_session(const SynthOptions& options, const fs::path& out) {
       {"format", "s2r.synth_truth"}, {"version", 1}, {"scene", options.scene},
       {"seed", options.seed},
       {"layout", r.layout() == Layout::kObjectCentre ? "object_centre" : "camera_centre"},
-      {"color_intrinsics", intrinsics_json(r.color_intrinsics())},
-      {"depth_intrinsics", intrinsics_json(r.depth_intrinsics())},
+      {"color_intrinsics", intrinsics_to_json(r.color_intrinsics())},
+      {"depth_intrinsics", intrinsics_to_json(r.depth_intrinsics())},
       {"color_from_depth", rigid_to_json(r.color_from_depth())},
       {"axis_dir_camera", {r.axis_dir_camera().x(), r.axis_dir_camera().y(), r.axis_dir_camera().z()}},
       {"axis_point_camera", {r.axis_point_camera().x(), r.axis_point_camera().y(), r.axis_point_camera().z()}},

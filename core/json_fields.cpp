@@ -144,6 +144,46 @@ int check_format_header(const FieldReader& doc, std::string_view format, int max
   return static_cast<int>(v);
 }
 
+nlohmann::json intrinsics_to_json(const Intrinsics& k) {
+  return {{"width", k.width}, {"height", k.height}, {"fx", k.fx}, {"fy", k.fy},
+          {"cx", k.cx},       {"cy", k.cy},         {"dist", k.dist}};
+}
+
+Intrinsics intrinsics_from(const FieldReader& r) {
+  Intrinsics k;
+  k.width = static_cast<int>(r.integer("width"));
+  k.height = static_cast<int>(r.integer("height"));
+  if (k.width <= 0 || k.height <= 0) r.error("width", "image size must be positive");
+  k.fx = r.positive("fx");
+  k.fy = r.positive("fy");
+  k.cx = r.number("cx");
+  k.cy = r.number("cy");
+  if (r.has("dist")) {
+    FieldReader d = r.at("dist");
+    if (d.array_size() != 5) d.error("expected 5 coefficients (k1 k2 p1 p2 k3)");
+    for (size_t i = 0; i < 5; ++i) {
+      const auto& v = d.raw()[i];
+      if (!v.is_number() || !std::isfinite(v.get<double>()))
+        d.error("coefficient " + std::to_string(i) + " is not a finite number");
+      k.dist[i] = v.get<double>();
+    }
+  }
+  return k;
+}
+
+Eigen::Vector3d vec3_from(const FieldReader& r, std::string_view key) {
+  FieldReader a = r.at(key);
+  if (a.array_size() != 3) a.error("expected 3 numbers");
+  Eigen::Vector3d v;
+  for (size_t i = 0; i < 3; ++i) {
+    const auto& x = a.raw()[i];
+    if (!x.is_number() || !std::isfinite(x.get<double>()))
+      a.error("element " + std::to_string(i) + " is not a finite number");
+    v[static_cast<int>(i)] = x.get<double>();
+  }
+  return v;
+}
+
 nlohmann::json rigid_to_json(const Eigen::Isometry3d& t) {
   nlohmann::json a = nlohmann::json::array();
   const Eigen::Matrix4d m = t.matrix();

@@ -16,6 +16,7 @@
 
 #include <Eigen/Geometry>
 
+#include "core/camera_model.h"
 #include "core/result.h"
 
 namespace s2r {
@@ -64,6 +65,13 @@ Result<nlohmann::json> parse_json_file(const std::filesystem::path& path);
 
 // Check {"format": FORMAT, "version": V} with 1 <= V <= max_version; returns V.
 int check_format_header(const FieldReader& doc, std::string_view format, int max_version);
+
+// Intrinsics as {"width", "height", "fx", "fy", "cx", "cy", "dist": [5]}.
+nlohmann::json intrinsics_to_json(const Intrinsics& k);
+// Validated: sizes > 0, fx/fy > 0, everything finite; "dist" optional (zeros).
+Intrinsics intrinsics_from(const FieldReader& r);
+// [x, y, z], finite.
+Eigen::Vector3d vec3_from(const FieldReader& r, std::string_view key);
 
 // 4x4 row-major array for a rigid transform.
 nlohmann::json rigid_to_json(const Eigen::Isometry3d& t);

@@ -67,35 +67,12 @@ Result<std::vector<T>> unpack(const fs::path& path, uint64_t expected_count) {
   return out;
 }
 
-json k_json(const Intrinsics& k) {
-  return {{"width", k.width}, {"height", k.height}, {"fx", k.fx}, {"fy", k.fy},
-          {"cx", k.cx},       {"cy", k.cy},         {"dist", k.dist}};
-}
-
-Intrinsics k_from(const FieldReader& r) {
-  Intrinsics k;
-  k.width = static_cast<int>(r.integer("width"));
-  k.height = static_cast<int>(r.integer("height"));
-  k.fx = r.positive("fx");
-  k.fy = r.positive("fy");
-  k.cx = r.number("cx");
-  k.cy = r.number("cy");
-  FieldReader d = r.at("dist");
-  if (d.array_size() != 5) d.error("expected 5 coefficients");
-  for (size_t i = 0; i < 5; ++i) {
-    if (!d.raw()[i].is_number()) d.error("coefficient " + std::to_string(i) + " is not a number");
-    k.dist[i] = d.raw()[i].get<double>();
-  }
-  if (auto st = k.validate(r.path()); !st) r.error(st.error().message);
-  return k;
-}
-
 }  // namespace
 
 Status save_model(const fs::path& dir, const Model& m) {
   json cams = json::array();
   for (const auto& c : m.cameras)
-    cams.push_back({{"intrinsics", k_json(c.intrinsics)}, {"world_from_camera", rigid_to_json(c.world_from_camera)},
+    cams.push_back({{"intrinsics", intrinsics_to_json(c.intrinsics)}, {"world_from_camera", rigid_to_json(c.world_from_camera)},
                     {"texture", c.texture}, {"session_frame", c.session_frame}});
   json doc = {{"format", "s2r.model"},
               {"version", kModelVersion},
@@ -136,7 +113,7 @@ Result<Model> load_model(const fs::path& dir) {
     for (size_t i = 0; i < cams.array_size(); ++i) {
       FieldReader c = cams.index(i);
       ModelCamera mc;
-      mc.intrinsics = k_from(c.at("intrinsics"));
+      mc.intrinsics = intrinsics_from(c.at("intrinsics"));
       mc.world_from_camera = c.rigid("world_from_camera");
       mc.texture = c.string_or("texture", "");
       mc.session_frame = static_cast<int>(c.integer_or("session_frame", -1));
