@@ -3,6 +3,10 @@
 #include <cstdio>
 
 #include "app/commands.h"
+#include <csignal>
+
+#include "capture/capture_devices.h"
+#include "capture/capture_session.h"
 #include "capture/import_datasets.h"
 #include "capture/session.h"
 #include "capture/synth_rig.h"
@@ -65,6 +69,119 @@ void add_import(CLI::App& app) {
   });
 }
 
+std::atomic<bool> g_stop{false};
+extern "C" void on_stop_signal(int) { g_stop = true; }
+
+// "camera-vanish@5" -> the fault, at the 5th frame / line.
+Status apply_sim_fault(const std::string& spec, SimOptions& sim) {
+  const size_t at = spec.find('@');
+  if (at == std::string::npos) return fail("--sim-fault wants KIND@N, got '" + spec + "'");
+  const std::string kind = spec.substr(0, at);
+  int n = 0;
+  try {
+    n = std::stoi(spec.substr(at + 1));
+  } catch (...) {
+    return fail("--sim-fault: '" + spec.substr(at + 1) + "' is not a number");
+  }
+  if (kind == "camera-vanish") sim.color_faults.vanish_at = n;
+  else if (kind == "depth-vanish") sim.depth_faults.vanish_at = n;
+  else if (kind == "camera-timeout") sim.color_faults.timeout_at = n;
+  else if (kind == "eagain-storm") { sim.color_faults.eagain_storm_at = n; sim.color_faults.eagain_count = 1000; }
+  else if (kind == "serial-silent") sim.table_faults.silent_after = n;
+  else if (kind == "table-alarm") sim.table_faults.alarm_at = n;
+  else if (kind == "drop-ok") sim.table_faults.drop_ok_at = n;
+  else if (kind == "table-reset") sim.table_faults.reset_mid_move_at = n;
+  else return fail("--sim-fault: unknown kind '" + kind + "' (camera-vanish, depth-vanish, camera-timeout, "
+                   "eagain-storm, serial-silent, table-alarm, drop-ok, table-reset)");
+  return {};
+}
+
+void add_capture(CLI::App& app) {
+  auto* sub = app.add_subcommand("capture", "Run a turntable capture session (simulated, replayed or real devices)");
+  struct Args {
+    std::string out, replay, camera, depth, turntable, record, report, scene = "blob";
+    bool sim = false, resume = false;
+    int steps = 24, width = 640, height = 480, settle_ms = 300, flush = -1;
+    uint64_t seed = 7;
+    std::vector<std::string> faults;
+  };
+  auto a = std::make_shared<Args>();
+  sub->add_option("--out", a->out, "session folder")->required();
+  sub->add_option("--steps", a->steps, "turntable steps over 360 degrees")->capture_default_str();
+  sub->add_flag("--resume", a->resume, "continue a session that was interrupted or killed");
+  auto* sim = sub->add_flag("--sim", a->sim, "simulated rig: real V4L2/GRBL driver code over simulated devices");
+  auto* rep = sub->add_option("--replay", a->replay, "replay a recording folder (color.v4l2rec, depth.v4l2rec, turntable.transcript)");
+  auto* cam = sub->add_option("--camera", a->camera, "colour camera: /dev/videoN or libcamera:ID");
+  sub->add_option("--depth", a->depth, "depth camera node (UVC Z16), optional");
+  auto* tty = sub->add_option("--turntable", a->turntable, "serial port of the GRBL turntable, e.g. /dev/ttyUSB0");
+  sim->excludes(rep)->excludes(cam);
+  rep->excludes(cam);
+  cam->needs(tty);
+  sub->add_option("--record", a->record, "also record the device boundaries into this folder");
+  sub->add_option("--width", a->width, "image width")->capture_default_str();
+  sub->add_option("--height", a->height, "image height")->capture_default_str();
+  sub->add_option("--settle-ms", a->settle_ms, "wait after the table stops")->capture_default_str();
+  sub->add_option("--flush", a->flush, "colour frames dropped after each move (default: 2 real, 0 sim/replay)");
+  sub->add_option("--scene", a->scene, "--sim: rig scene (bunny, fuzzy, room, blob)")->capture_default_str();
+  sub->add_option("--seed", a->seed, "--sim: noise seed")->capture_default_str();
+  sub->add_option("--sim-fault", a->faults, "--sim: inject KIND@N (camera-vanish, depth-vanish, camera-timeout, "
+                                            "eagain-storm, serial-silent, table-alarm, drop-ok, table-reset)");
+  sub->add_option("--report", a->report, "report path (default OUT/report.json)");
+  sub->callback([a] {
+    set_runner([a] {
+      if (!a->sim && a->replay.empty() && a->camera.empty())
+        return error("choose the devices: --sim, --replay DIR, or --camera DEV --turntable TTY");
+      DeviceOptions d;
+      d.width = a->width;
+      d.height = a->height;
+      d.settle = std::chrono::milliseconds(a->settle_ms);
+      d.record_dir = a->record;
+      Result<std::unique_ptr<CaptureRig>> rig = fail("no devices");
+      if (a->sim) {
+        SimOptions so;
+        so.scene = a->scene;
+        so.seed = a->seed;
+        for (const auto& f : a->faults)
+          if (auto st = apply_sim_fault(f, so); !st) return error(st.error().message);
+        rig = make_sim_capture(so, d);
+      } else if (!a->replay.empty()) {
+        rig = make_replay_capture(a->replay, d);
+      } else {
+        rig = make_hardware_capture(a->camera, a->depth, a->turntable, d);
+      }
+      if (!rig) return error(rig.error().message);
+      CaptureOptions o;
+      o.out = a->out;
+      o.steps = a->steps;
+      o.resume = a->resume;
+      o.flush_frames = a->flush >= 0 ? a->flush : (a->sim || !a->replay.empty() ? 0 : 2);
+      struct sigaction sa {};
+      sa.sa_handler = on_stop_signal;
+      sigaction(SIGINT, &sa, nullptr);
+      sigaction(SIGTERM, &sa, nullptr);
+      auto r = run_capture((*rig)->devices, o, &g_stop);
+      if (!r) {
+        std::fprintf(stderr, "s2r: error: %s\n", r.error().message.c_str());
+        if (fs::exists(fs::path(a->out) / "session.json"))
+          std::fprintf(stderr, "s2r: the session keeps every complete frame; continue with: s2r capture --out %s --resume ...\n",
+                       a->out.c_str());
+        return g_stop ? 130 : 1;
+      }
+      return finish(*r, a->report.empty() ? fs::path(a->out) / "report.json" : fs::path(a->report));
+    });
+  });
+}
+
+void add_devices(CLI::App& app) {
+  auto* sub = app.add_subcommand("devices", "List cameras (V4L2 nodes, libcamera), depth nodes and serial ports");
+  sub->callback([] {
+    set_runner([] {
+      for (const auto& l : list_capture_devices()) std::printf("%s\n", l.c_str());
+      return 0;
+    });
+  });
+}
+
 void add_inspect(CLI::App& app) {
   auto* sub = app.add_subcommand("inspect", "Validate a session and print a summary");
   auto path = std::make_shared<std::string>();
@@ -100,8 +217,8 @@ void add_data_commands(CLI::App& app) {
   add_synth(app);
   add_import(app);
   add_inspect(app);
-  add_not_yet(app, "devices", "List cameras, depth nodes and serial ports");
-  add_not_yet(app, "capture", "Run a capture session (--sim | --replay | real devices)");
+  add_devices(app);
+  add_capture(app);
   add_not_yet(app, "calibrate", "Intrinsics, depth-to-colour, turntable axis");
   add_not_yet(app, "register", "Register all views at once");
   add_not_yet(app, "reconstruct", "Fusion, microfacets, octree, per-camera depth");

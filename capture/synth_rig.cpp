@@ -89,17 +89,19 @@ struct SynthRig::Impl {
     if (device) rtcReleaseDevice(device);
   }
 
-  Eigen::Isometry3d world_from_camera(int view) const {
-    const double a = (view * 360.0 / opt.views - view * opt.table_error_deg) * kDeg;
+  double true_angle_deg(int view) const { return view * 360.0 / opt.views - view * opt.table_error_deg; }
+  Eigen::Isometry3d world_from_camera(int view) const { return world_from_camera_at(true_angle_deg(view)); }
+  Eigen::Isometry3d world_from_camera_at(double angle_deg) const {
+    const double a = angle_deg * kDeg;
     const double sign = scene.layout == Layout::kObjectCentre ? -1.0 : 1.0;
     Eigen::Isometry3d r = Eigen::Isometry3d::Identity();
     r.linear() = Eigen::AngleAxisd(sign * a, Vector3d::UnitZ()).toRotationMatrix();
     return r * scene.table_from_camera;
   }
 
-  Vector3d light_world(int view) const {
+  Vector3d light_world_at(double angle_deg) const {
     if (scene.layout == Layout::kCameraCentre) return scene.light_dir_lab;
-    const double a = (view * 360.0 / opt.views - view * opt.table_error_deg) * kDeg;
+    const double a = angle_deg * kDeg;
     return Eigen::AngleAxisd(-a, Vector3d::UnitZ()) * scene.light_dir_lab;
   }
 
@@ -260,10 +262,9 @@ const Intrinsics& SynthRig::color_intrinsics() const { return impl_->color_K; }
 const Intrinsics& SynthRig::depth_intrinsics() const { return impl_->depth_K; }
 const Eigen::Isometry3d& SynthRig::color_from_depth() const { return impl_->color_from_depth; }
 Eigen::Isometry3d SynthRig::world_from_camera(int view) const { return impl_->world_from_camera(view); }
+Eigen::Isometry3d SynthRig::world_from_camera_at(double a) const { return impl_->world_from_camera_at(a); }
 double SynthRig::commanded_angle_deg(int view) const { return view * 360.0 / impl_->opt.views; }
-double SynthRig::true_angle_deg(int view) const {
-  return view * 360.0 / impl_->opt.views - view * impl_->opt.table_error_deg;
-}
+double SynthRig::true_angle_deg(int view) const { return impl_->true_angle_deg(view); }
 Vector3d SynthRig::axis_dir_camera() const {
   return impl_->scene.table_from_camera.inverse().linear() * Vector3d::UnitZ();
 }
@@ -271,8 +272,11 @@ Vector3d SynthRig::axis_point_camera() const {
   return impl_->scene.table_from_camera.inverse() * Vector3d::Zero();
 }
 
-SynthView SynthRig::render(int view) const {
+SynthView SynthRig::render(int view) const { return render_at(impl_->true_angle_deg(view), uint64_t(view)); }
+
+SynthView SynthRig::render_at(double table_angle_deg, uint64_t noise_key) const {
   const Impl& m = *impl_;
+  const uint64_t view = noise_key;
   const int w = m.opt.width, h = m.opt.height;
   const size_t spp = m.color_sub.size() / (static_cast<size_t>(w) * h);
   SynthView out;
@@ -281,9 +285,9 @@ SynthView SynthRig::render(int view) const {
   out.depth = ImageU16(w, h, 1);
   out.gt_depth = ImageF(w, h, 1);
   out.labels = ImageU8(w, h, 1);
-  const Eigen::Isometry3f wc = m.world_from_camera(view).cast<float>();
-  const Eigen::Isometry3f wd = (m.world_from_camera(view) * m.color_from_depth).cast<float>();
-  const Vector3f light = m.light_world(view).cast<float>();
+  const Eigen::Isometry3f wc = m.world_from_camera_at(table_angle_deg).cast<float>();
+  const Eigen::Isometry3f wd = (m.world_from_camera_at(table_angle_deg) * m.color_from_depth).cast<float>();
+  const Vector3f light = m.light_world_at(table_angle_deg).cast<float>();
   const float cos_grazing = static_cast<float>(std::cos(m.opt.grazing_deg * kDeg));
   const uint64_t seed = m.opt.seed;
   const int threads = m.opt.threads > 0 ? m.opt.threads : omp_get_max_threads();

@@ -67,6 +67,7 @@ class SynthRig {
   const Intrinsics& color_intrinsics() const;
   const Intrinsics& depth_intrinsics() const;
   const Eigen::Isometry3d& color_from_depth() const;
+  Eigen::Isometry3d world_from_camera_at(double table_angle_deg) const;
   // Colour camera pose at view i (world = object frame for object-centre
   // scenes, the room for camera-centre scenes).
   Eigen::Isometry3d world_from_camera(int view) const;
@@ -77,6 +78,8 @@ class SynthRig {
   Eigen::Vector3d axis_point_camera() const;
 
   SynthView render(int view) const;
+  // At any table angle (the simulated capture devices); `noise_key` seeds the noise.
+  SynthView render_at(double table_angle_deg, uint64_t noise_key) const;
   Status write_geometry(const std::filesystem::path& dir) const;
 
  private:

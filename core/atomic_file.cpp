@@ -15,6 +15,14 @@ namespace {
 
 std::string errno_text(int err) { return std::strerror(err); }
 
+std::function<int(const fs::path&)> g_fault_hook;
+
+Status injected_fault(const fs::path& path) {
+  if (!g_fault_hook) return {};
+  if (int err = g_fault_hook(path)) return fail("write to '" + path.string() + "' failed: " + errno_text(err));
+  return {};
+}
+
 fs::path temp_name_for(const fs::path& path) {
   // ".<stem>.tmp-<pid><ext>" keeps the extension for format-by-extension writers.
   return path.parent_path() /
@@ -32,6 +40,20 @@ Status fsync_path(const fs::path& path, int flags) {
   return {};
 }
 
+// write(2) until everything is out, retrying on EINTR.
+Status write_all(int fd, std::string_view bytes, const fs::path& path) {
+  size_t done = 0;
+  while (done < bytes.size()) {
+    ssize_t n = ::write(fd, bytes.data() + done, bytes.size() - done);
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      return fail("write to '" + path.string() + "' failed: " + errno_text(errno));
+    }
+    done += static_cast<size_t>(n);
+  }
+  return {};
+}
+
 Status ensure_parent(const fs::path& path) {
   fs::path parent = path.parent_path();
   if (parent.empty()) return {};
@@ -43,6 +65,8 @@ Status ensure_parent(const fs::path& path) {
 
 }  // namespace
 
+void set_write_fault_hook(std::function<int(const fs::path&)> hook) { g_fault_hook = std::move(hook); }
+
 Status sync_directory(const fs::path& dir) {
   return fsync_path(dir.empty() ? fs::path(".") : dir, O_RDONLY | O_DIRECTORY);
 }
@@ -50,6 +74,7 @@ Status sync_directory(const fs::path& dir) {
 Status write_via_temp(const fs::path& path,
                       const std::function<Status(const fs::path& tmp)>& write_to) {
   if (auto st = ensure_parent(path); !st) return st;
+  if (auto st = injected_fault(path); !st) return st;
   const fs::path tmp = temp_name_for(path);
   auto cleanup = [&] {
     std::error_code ec;
@@ -76,16 +101,9 @@ Status write_file_atomic(const fs::path& path, std::string_view bytes) {
   return write_via_temp(path, [&](const fs::path& tmp) -> Status {
     int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
     if (fd < 0) return fail("cannot create '" + tmp.string() + "': " + errno_text(errno));
-    size_t done = 0;
-    while (done < bytes.size()) {
-      ssize_t n = ::write(fd, bytes.data() + done, bytes.size() - done);
-      if (n < 0) {
-        if (errno == EINTR) continue;
-        int err = errno;
-        ::close(fd);
-        return fail("write to '" + tmp.string() + "' failed: " + errno_text(err));
-      }
-      done += static_cast<size_t>(n);
+    if (auto st = write_all(fd, bytes, tmp); !st) {
+      ::close(fd);
+      return st;
     }
     if (::close(fd) != 0) return fail("close of '" + tmp.string() + "' failed: " + errno_text(errno));
     return {};
@@ -94,20 +112,14 @@ Status write_file_atomic(const fs::path& path, std::string_view bytes) {
 
 Status append_line_durable(const fs::path& path, std::string_view line) {
   if (auto st = ensure_parent(path); !st) return st;
+  if (auto st = injected_fault(path); !st) return st;
   int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_APPEND | O_CLOEXEC, 0644);
   if (fd < 0) return fail("cannot open journal '" + path.string() + "': " + errno_text(errno));
   std::string buf(line);
   buf.push_back('\n');
-  size_t done = 0;
-  while (done < buf.size()) {
-    ssize_t n = ::write(fd, buf.data() + done, buf.size() - done);
-    if (n < 0) {
-      if (errno == EINTR) continue;
-      int err = errno;
-      ::close(fd);
-      return fail("append to '" + path.string() + "' failed: " + errno_text(err));
-    }
-    done += static_cast<size_t>(n);
+  if (auto st = write_all(fd, buf, path); !st) {
+    ::close(fd);
+    return st;
   }
   int rc = ::fsync(fd);
   int err = errno;

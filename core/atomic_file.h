@@ -28,6 +28,11 @@ Status append_line_durable(const std::filesystem::path& path, std::string_view l
 
 Result<std::string> read_file(const std::filesystem::path& path);
 
+// Fault injection for tests (disk full, I/O errors): the hook runs before
+// every write of this module; a non-zero errno it returns fails the write as
+// the kernel would. Pass nullptr to remove it.
+void set_write_fault_hook(std::function<int(const std::filesystem::path&)> hook);
+
 // fsync a folder so that a rename inside it is durable.
 Status sync_directory(const std::filesystem::path& dir);
 

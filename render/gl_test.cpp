@@ -43,18 +43,23 @@ std::vector<Expected> scene(std::vector<Eigen::Vector3f>* pts, std::vector<std::
   return want;
 }
 
-ImageU8 draw(GlContext& ctx) {
-  ctx.make_current();
-  auto fb = Framebuffer::create(W, H);
-  EXPECT_TRUE(fb) << fb.error().message;
+// The test scene into `fb` (the context must be current).
+void draw_scene(const Framebuffer& fb) {
   auto r = PointRenderer::create();
-  EXPECT_TRUE(r) << r.error().message;
+  ASSERT_TRUE(r) << r.error().message;
   std::vector<Eigen::Vector3f> pts;
   std::vector<std::array<uint8_t, 3>> cols;
   scene(&pts, &cols);
   r->upload(pts, cols);
-  fb->clear(10 / 255.f, 20 / 255.f, 30 / 255.f);
+  fb.clear(10 / 255.f, 20 / 255.f, 30 / 255.f);
   r->draw(gl_view_projection(camera(), Eigen::Isometry3d::Identity(), 0.1f, 10.f), 1.f);
+}
+
+ImageU8 draw(GlContext& ctx) {
+  ctx.make_current();
+  auto fb = Framebuffer::create(W, H);
+  EXPECT_TRUE(fb) << fb.error().message;
+  draw_scene(*fb);
   return fb->read_rgb();
 }
 
@@ -171,14 +176,7 @@ TEST(Window, SameDrawingCodeSamePixelsUnderXvfb) {
   // Blit to the window's back buffer and read it: the screen shows the same.
   auto fb = Framebuffer::create(W, H);
   ASSERT_TRUE(fb);
-  auto r = PointRenderer::create();
-  ASSERT_TRUE(r);
-  std::vector<Eigen::Vector3f> pts;
-  std::vector<std::array<uint8_t, 3>> cols;
-  scene(&pts, &cols);
-  r->upload(pts, cols);
-  fb->clear(10 / 255.f, 20 / 255.f, 30 / 255.f);
-  r->draw(gl_view_projection(camera(), Eigen::Isometry3d::Identity(), 0.1f, 10.f), 1.f);
+  draw_scene(*fb);
   int fw = 0, fh = 0;
   (*win)->framebuffer_size(&fw, &fh);
   ASSERT_EQ(fw, W);

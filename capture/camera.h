@@ -1,0 +1,34 @@
+// One camera interface for colour and depth devices, whatever the driver
+// (V4L2, libcamera, replay, the simulated rig). The session code only knows this.
+#pragma once
+
+#include <cstdint>
+#include <string>
+
+#include "core/image.h"
+#include "core/result.h"
+
+namespace s2r {
+
+struct CapturedFrame {
+  uint32_t fourcc = 0;
+  ImageU8 rgb;           // colour and grey formats
+  ImageU16 depth;        // Z16
+  int64_t timestamp_ns = 0;
+  uint32_t sequence = 0;
+  uint32_t dropped_before = 0;  // frames the device skipped before this one
+};
+
+class Camera {
+ public:
+  virtual ~Camera() = default;
+  virtual Status start() = 0;
+  // The next frame; errors say what happened (timeout, device gone, corrupt).
+  virtual Result<CapturedFrame> grab() = 0;
+  virtual void stop() = 0;
+  virtual std::string describe() const = 0;
+  virtual int width() const = 0;
+  virtual int height() const = 0;
+};
+
+}  // namespace s2r

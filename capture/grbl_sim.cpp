@@ -1,0 +1,279 @@
+#include "capture/grbl_sim.h"
+
+#include <fcntl.h>
+#include <poll.h>
+#include <pty.h>
+#include <termios.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <regex>
+
+namespace s2r {
+
+namespace {
+double now_s() {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+constexpr const char* kBanner = "\r\nGrbl 1.1h ['$' for help]\r\n";
+}  // namespace
+
+static Result<std::unique_ptr<GrblSim>> open_pty(std::unique_ptr<GrblSim> sim, int* master, int* slave,
+                                                 std::string* path) {
+  char name[128] = {};
+  if (openpty(master, slave, name, nullptr, nullptr) != 0) return fail("openpty failed");
+  termios tio{};
+  tcgetattr(*slave, &tio);
+  cfmakeraw(&tio);  // no echo, no CR/LF translation before the host opens the port
+  tcsetattr(*slave, TCSANOW, &tio);
+  fcntl(*master, F_SETFL, fcntl(*master, F_GETFL) | O_NONBLOCK);
+  *path = name;
+  return sim;
+}
+
+Result<std::unique_ptr<GrblSim>> GrblSim::start(const GrblFaults& faults) {
+  std::unique_ptr<GrblSim> sim(new GrblSim());
+  sim->faults_ = faults;
+  sim->alarm_ = faults.start_in_alarm;
+  GrblSim* s = sim.get();
+  auto r = open_pty(std::move(sim), &s->master_, &s->slave_, &s->slave_path_);
+  if (!r) return r;
+  if (!faults.no_banner) s->reply(std::string(kBanner) + (faults.start_in_alarm ? "[MSG:'$H'|'$X' to unlock]\r\n" : ""));
+  s->thread_ = std::thread([s] { s->run(); });
+  return r;
+}
+
+Result<std::unique_ptr<GrblSim>> GrblSim::replay(const std::filesystem::path& transcript) {
+  std::ifstream in(transcript);
+  if (!in) return fail("'" + transcript.string() + "': cannot open transcript");
+  std::unique_ptr<GrblSim> sim(new GrblSim());
+  std::string line;
+  int n = 0;
+  while (std::getline(in, line)) {
+    ++n;
+    if (line.size() < 2 || (line[0] != '>' && line[0] != '<') || line[1] != ' ')
+      return fail("'" + transcript.string() + "': line " + std::to_string(n) + ": expected '> ' or '< '");
+    sim->transcript_.emplace_back(line[0], line.substr(2));
+  }
+  sim->replaying_ = true;
+  GrblSim* s = sim.get();
+  auto r = open_pty(std::move(sim), &s->master_, &s->slave_, &s->slave_path_);
+  if (!r) return r;
+  // Device lines before the first host line (the banner) go out at once.
+  size_t i = 0;
+  for (; i < s->transcript_.size() && s->transcript_[i].first == '<'; ++i) s->reply(s->transcript_[i].second + "\r\n");
+  s->transcript_.erase(s->transcript_.begin(), s->transcript_.begin() + static_cast<long>(i));
+  s->thread_ = std::thread([s] { s->run_replay(); });
+  return r;
+}
+
+GrblSim::~GrblSim() {
+  stop_ = true;
+  if (thread_.joinable()) thread_.join();
+  if (master_ >= 0) ::close(master_);
+  if (slave_ >= 0) ::close(slave_);
+}
+
+void GrblSim::unplug() {
+  stop_ = true;
+  if (thread_.joinable()) thread_.join();
+  if (slave_ >= 0) ::close(slave_);
+  slave_ = -1;
+  if (master_ >= 0) ::close(master_);
+  master_ = -1;
+}
+
+void GrblSim::reply(const std::string& text) {
+  if (master_ < 0) return;
+  size_t done = 0;
+  while (done < text.size()) {
+    ssize_t n = ::write(master_, text.data() + done, text.size() - done);
+    if (n <= 0) {
+      if (errno == EAGAIN || errno == EINTR) {
+        usleep(1000);
+        continue;
+      }
+      return;
+    }
+    done += static_cast<size_t>(n);
+  }
+}
+
+double GrblSim::position_locked() const {
+  const double t = now_s();
+  if (t >= move_end_ || move_end_ <= move_start_) return to_;
+  return from_ + (to_ - from_) * (t - move_start_) / (move_end_ - move_start_);
+}
+
+double GrblSim::position() const {
+  std::lock_guard lock(mu_);
+  return position_locked();
+}
+
+std::string GrblSim::status_line() {
+  const double p = position_locked();
+  const char* state = alarm_ ? "Alarm" : now_s() < move_end_ ? "Run" : "Idle";
+  char buf[128];
+  std::snprintf(buf, sizeof buf, "<%s|MPos:%.3f,0.000,0.000|FS:0,0>\r\n", state, p);
+  return buf;
+}
+
+void GrblSim::handle_line(const std::string& raw) {
+  std::string line;
+  for (char c : raw)
+    if (c != ' ') line.push_back(static_cast<char>(std::toupper(static_cast<unsigned char>(c))));
+  if (line.empty()) return;
+  const int index = gcode_index_++;
+  lines_++;
+  if (faults_.silent_after >= 0 && index >= faults_.silent_after) {
+    silent_ = true;
+    return;
+  }
+  std::string out;
+  if (faults_.garbage_every > 0 && ++replies_ % faults_.garbage_every == 0) out += "\x01\xfe~#\x7f\r\n#~";  // a line of noise, then noise before the reply
+  if (index == faults_.error_at) {
+    reply(out + "error:20\r\n");
+    return;
+  }
+  if (line == "$X") {
+    alarm_ = false;
+    reply(out + "[MSG:Caution: Unlocked]\r\nok\r\n");
+    return;
+  }
+  if (alarm_) {
+    reply(out + "error:9\r\n");
+    return;
+  }
+  if (line == "$H") {
+    from_ = to_ = 0;
+    reply(out + "ok\r\n");
+    return;
+  }
+  if (line.rfind("G92", 0) == 0) {
+    from_ = to_ = 0;
+    move_end_ = move_start_ = 0;
+    reply(out + "ok\r\n");
+    return;
+  }
+  // Motion: G90/G91 modal, G0/G1 with an X word.
+  if (line.find("G91") != std::string::npos) absolute_ = false;
+  if (line.find("G90") != std::string::npos) absolute_ = true;
+  const size_t x = line.find('X');
+  if (x != std::string::npos) {
+    char* end = nullptr;
+    const double v = std::strtod(line.c_str() + x + 1, &end);
+    if (end == line.c_str() + x + 1 || !std::isfinite(v)) {
+      reply(out + "error:2\r\n");
+      return;
+    }
+    if (index == faults_.alarm_at) {
+      alarm_ = true;
+      reply(out + "ALARM:2\r\n");
+      return;
+    }
+    const double start = position_locked();
+    from_ = start;
+    to_ = absolute_ ? v : start + v;
+    move_start_ = now_s();
+    move_end_ = move_start_ + std::abs(to_ - from_) / faults_.degrees_per_second;
+    if (index == faults_.reset_mid_move_at) reset_at_line_ = index;
+  } else if (line.find_first_not_of("G0123456789.") != std::string::npos && line[0] != '$') {
+    reply(out + "error:20\r\n");
+    return;
+  }
+  if (index == faults_.drop_ok_at) return;
+  reply(out + "ok\r\n");
+}
+
+void GrblSim::run() {
+  std::string buf;
+  while (!stop_) {
+    pollfd pfd{master_, POLLIN, 0};
+    if (::poll(&pfd, 1, 5) <= 0) {
+      std::lock_guard lock(mu_);
+      if (reset_at_line_ >= 0 && now_s() >= 0.5 * (move_start_ + move_end_)) {  // reset halfway
+        to_ = from_ = 0;  // a reset board knows no position
+        move_end_ = move_start_ = 0;
+        reset_at_line_ = -1;
+        reply("ALARM:3\r\n" + std::string(kBanner));
+      }
+      continue;
+    }
+    char tmp[256];
+    ssize_t n = ::read(master_, tmp, sizeof tmp);
+    if (n <= 0) continue;
+    std::lock_guard lock(mu_);
+    for (ssize_t i = 0; i < n; ++i) {
+      const char c = tmp[i];
+      if (silent_) continue;
+      if (c == '?') {
+        reply(status_line());
+      } else if (c == 0x18) {  // soft reset
+        move_end_ = move_start_ = 0;
+        from_ = to_ = position_locked();
+        buf.clear();
+        reply(kBanner);
+      } else if (c == '\n' || c == '\r') {
+        handle_line(buf);
+        buf.clear();
+      } else {
+        buf.push_back(c);
+      }
+    }
+  }
+}
+
+void GrblSim::run_replay() {
+  std::string buf;
+  size_t next = 0;
+  std::string last_status = "<Idle|MPos:0.000,0.000,0.000|FS:0,0>";
+  auto send_replies = [&] {
+    while (next < transcript_.size() && transcript_[next].first == '<') {
+      const std::string& l = transcript_[next++].second;
+      if (!l.empty() && l.front() == '<') last_status = l;
+      reply(l + "\r\n");
+    }
+  };
+  // Status polls depend on timing: their count need not match the recording.
+  auto answer = [&](const std::string& host) {
+    if (host != "?")
+      while (next < transcript_.size() && transcript_[next].first == '>' && transcript_[next].second == "?") {
+        ++next;
+        while (next < transcript_.size() && transcript_[next].first == '<') {
+          if (!transcript_[next].second.empty() && transcript_[next].second.front() == '<')
+            last_status = transcript_[next].second;
+          ++next;
+        }
+      }
+    if (next < transcript_.size() && transcript_[next].first == '>' && transcript_[next].second == host) {
+      ++next;
+      send_replies();
+    } else if (host == "?") {
+      reply(last_status + "\r\n");
+    }
+  };
+  while (!stop_) {
+    pollfd pfd{master_, POLLIN, 0};
+    if (::poll(&pfd, 1, 5) <= 0) continue;
+    char tmp[256];
+    ssize_t n = ::read(master_, tmp, sizeof tmp);
+    if (n <= 0) continue;
+    for (ssize_t i = 0; i < n; ++i) {
+      const char c = tmp[i];
+      if (c == '?' || c == 0x18) {
+        answer(std::string(1, c));
+      } else if (c == '\n' || c == '\r') {
+        if (!buf.empty()) answer(buf);
+        lines_++;
+        buf.clear();
+      } else {
+        buf.push_back(c);
+      }
+    }
+  }
+}
+
+}  // namespace s2r

@@ -1,0 +1,206 @@
+#include "capture/grbl_turntable.h"
+
+#include <cctype>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <thread>
+
+#include "core/atomic_file.h"
+
+namespace s2r {
+using namespace std::chrono_literals;
+
+std::string grbl_error_meaning(int code) {
+  switch (code) {
+    case 1: return "G-code words consist of a letter and a value; letter was not found";
+    case 2: return "numeric value format is not valid or missing an expected value";
+    case 3: return "'$' system command was not recognized or supported";
+    case 8: return "command only valid when idle";
+    case 9: return "G-code locked out during alarm or jog state (unlock with $X)";
+    case 15: return "jog target exceeds machine travel";
+    case 20: return "unsupported or invalid G-code command";
+    case 22: return "feed rate has not yet been set or is undefined";
+    case 33: return "motion command has an invalid target";
+    default: return "GRBL error code " + std::to_string(code);
+  }
+}
+
+std::string grbl_alarm_meaning(int code) {
+  switch (code) {
+    case 1: return "hard limit triggered; position is likely lost, re-home";
+    case 2: return "soft limit: motion target exceeds machine travel";
+    case 3: return "reset while in motion; position is likely lost, re-home";
+    case 4: return "probe fail";
+    case 6: case 7: case 8: case 9: return "homing failed";
+    default: return "GRBL alarm code " + std::to_string(code);
+  }
+}
+
+std::optional<GrblStatus> parse_grbl_status(const std::string& line, char axis) {
+  if (line.size() < 3 || line.front() != '<' || line.back() != '>') return std::nullopt;
+  const std::string body = line.substr(1, line.size() - 2);
+  GrblStatus s;
+  s.state = body.substr(0, body.find_first_of("|:"));
+  const size_t m = body.find("MPos:");
+  if (m == std::string::npos) return std::nullopt;
+  const int index = axis == 'X' ? 0 : axis == 'Y' ? 1 : 2;
+  size_t p = m + 5;
+  for (int i = 0; i < index; ++i) {
+    p = body.find(',', p);
+    if (p == std::string::npos) return std::nullopt;
+    ++p;
+  }
+  char* end = nullptr;
+  s.position = std::strtod(body.c_str() + p, &end);
+  if (end == body.c_str() + p || !std::isfinite(s.position)) return std::nullopt;
+  if (s.state.empty()) return std::nullopt;
+  return s;
+}
+
+Result<std::unique_ptr<GrblTurntable>> GrblTurntable::open(const std::string& path, const GrblOptions& o) {
+  auto port = SerialPort::open(path, o.baud);
+  if (!port) return std::unexpected(port.error());
+  std::unique_ptr<GrblTurntable> t(new GrblTurntable(std::move(*port), o));
+  if (!o.transcript.empty()) {
+    const auto file = o.transcript;
+    t->port_.set_tap([file](char dir, const std::string& line) {
+      (void)append_line_durable(file, std::string(1, dir) + " " + line);
+    });
+  }
+  // The board resets when the port opens: wait for its banner; else ask for one.
+  if (auto st = t->wait_banner(o.banner_timeout); !st) {
+    if (auto w = t->port_.write("\x18"); !w) return std::unexpected(w.error());
+    if (auto st2 = t->wait_banner(o.banner_timeout); !st2)
+      return fail("no GRBL banner from '" + path + "' after a soft reset (is it a GRBL board at " +
+                  std::to_string(o.baud) + " baud?): " + st2.error().message);
+  }
+  auto s = t->status();
+  if (!s) return std::unexpected(s.error());
+  if (s->state == "Alarm") {
+    if (!o.unlock_alarm)
+      return fail("turntable on '" + path + "' starts in alarm state; check it, then unlock ($X or --unlock-alarm)");
+    if (auto st = t->command("$X"); !st) return std::unexpected(st.error());
+  }
+  return t;
+}
+
+Status GrblTurntable::wait_banner(std::chrono::milliseconds timeout) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  for (;;) {
+    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
+    if (left.count() <= 0) return fail("timed out waiting for the banner");
+    auto line = port_.read_line(left);
+    if (!line) return std::unexpected(line.error());
+    if (line->rfind("Grbl", 0) == 0) {
+      banner_ = *line;
+      return {};
+    }
+  }
+}
+
+Status GrblTurntable::check_async(const std::string& line) {
+  if (line.rfind("ALARM:", 0) == 0) {
+    const int code = std::atoi(line.c_str() + 6);
+    return fail("turntable alarm " + std::to_string(code) + ": " + grbl_alarm_meaning(code));
+  }
+  if (line.rfind("Grbl", 0) == 0)
+    return fail("turntable reset itself (" + line + "): its position is lost; check power and cabling, "
+                "then resume (the table is re-homed at the current position)");
+  return {};
+}
+
+namespace {
+// Line noise glued to the front of a reply ("~#ok", "#<Idle|...>") is dropped.
+std::string clean(const std::string& line) {
+  size_t i = 0;
+  while (i < line.size() && !std::isalnum(static_cast<unsigned char>(line[i])) && line[i] != '<' && line[i] != '[') ++i;
+  return line.substr(i);
+}
+}  // namespace
+
+Status GrblTurntable::command(const std::string& cmd) {
+  if (auto st = port_.write(cmd + "\n"); !st) return st;
+  for (;;) {
+    auto line = port_.read_line(opt_.reply_timeout);
+    if (!line) {
+      if (port_.timed_out(line.error())) return fail("no reply to '" + cmd + "' (lost ok?)");
+      return std::unexpected(line.error());
+    }
+    *line = clean(*line);
+    if (*line == "ok") return {};
+    if (line->rfind("error:", 0) == 0) {
+      const int code = std::atoi(line->c_str() + 6);
+      return fail("turntable rejected '" + cmd + "': error:" + std::to_string(code) + " (" + grbl_error_meaning(code) + ")");
+    }
+    if (auto st = check_async(*line); !st) return st;
+    // "[MSG:...]", status reports, echoes and noise: keep waiting.
+  }
+}
+
+Result<GrblStatus> GrblTurntable::status() {
+  int unanswered = 0;
+  for (;;) {
+    if (auto st = port_.write("?"); !st) return std::unexpected(st.error());
+    const auto deadline = std::chrono::steady_clock::now() + opt_.reply_timeout;
+    bool timed_out = false;
+    while (!timed_out) {
+      const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
+      if (left.count() <= 0) break;
+      auto line = port_.read_line(left);
+      if (!line) {
+        if (!port_.timed_out(line.error())) return std::unexpected(line.error());
+        timed_out = true;
+        break;
+      }
+      *line = clean(*line);
+      if (auto st = check_async(*line); !st) return std::unexpected(st.error());
+      if (auto s = parse_grbl_status(*line, opt_.axis[0])) return *s;
+    }
+    if (++unanswered > opt_.retries)
+      return fail("turntable on '" + port_.path() + "' is silent: " + std::to_string(unanswered) +
+                  " status requests unanswered");
+  }
+}
+
+Status GrblTurntable::home() {
+  // DIY turntables rarely have a homing switch: the current position becomes 0.
+  if (auto st = command("G92 " + opt_.axis + "0"); !st) return st;
+  return {};
+}
+
+Status GrblTurntable::move_to(double degrees) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "G90 G0 %s%.4f", opt_.axis.c_str(), degrees);
+  if (auto st = command(buf); !st) {
+    // A lost "ok" is not fatal: the status poll below tells where the table is.
+    if (st.error().message.find("lost ok") == std::string::npos) return st;
+  }
+  const auto deadline = std::chrono::steady_clock::now() + opt_.move_timeout;
+  for (;;) {
+    auto s = status();
+    if (!s) return std::unexpected(s.error());
+    if (s->state == "Alarm") return fail("turntable entered alarm state during the move to " + std::string(buf + 7));
+    if (s->state == "Idle") {
+      if (std::abs(s->position - degrees) > 0.01) {
+        // The command was lost before the board took it: send it again (absolute, so safe).
+        if (auto st = command(buf); !st) return st;
+        continue;
+      }
+      std::this_thread::sleep_for(opt_.settle);
+      return {};
+    }
+    if (std::chrono::steady_clock::now() > deadline)
+      return fail("turntable did not reach " + std::to_string(degrees) + " deg within " +
+                  std::to_string(opt_.move_timeout.count() / 1000) + " s (state " + s->state + ")");
+    std::this_thread::sleep_for(opt_.poll_interval);
+  }
+}
+
+Result<double> GrblTurntable::position() {
+  auto s = status();
+  if (!s) return std::unexpected(s.error());
+  return s->position;
+}
+
+}  // namespace s2r

@@ -1,0 +1,69 @@
+// A DIY turntable on an Arduino running GRBL-style firmware (as Horus/Ciclop
+// and FabScan do): 115200 baud, the table is the X axis in degrees.
+//
+//   open      the board resets when the port opens and prints a banner
+//             ("Grbl 1.1h ['$' for help]"); without one we send Ctrl-X (soft
+//             reset) and wait again.
+//   move_to   "G90 G0 X<deg>" -> "ok" | "error:N" | "ALARM:N", then "?" status
+//             polls ("<Run|MPos:..>" ... "<Idle|MPos:..>"), then a settle time.
+//   faults    error:N and ALARM:N map to messages with GRBL's meaning; a lost
+//             "ok" is recovered by the status poll (absolute moves are safe to
+//             re-check); garbage bytes and partial lines are skipped; silence
+//             is retried then reported; a reset mid-move (a new banner) and an
+//             unplugged board (EIO/ENODEV) are reported as such.
+#pragma once
+
+#include <chrono>
+#include <filesystem>
+#include <memory>
+#include <optional>
+#include <string>
+
+#include "capture/serial_port.h"
+#include "capture/turntable.h"
+
+namespace s2r {
+
+struct GrblOptions {
+  int baud = 115200;
+  std::chrono::milliseconds banner_timeout{2500};
+  std::chrono::milliseconds reply_timeout{1000};
+  std::chrono::milliseconds move_timeout{60000};
+  std::chrono::milliseconds poll_interval{20};
+  std::chrono::milliseconds settle{300};
+  int retries = 3;              // status polls that may go unanswered in a row
+  bool unlock_alarm = false;    // send $X if the board starts in alarm
+  std::string axis = "X";
+  std::filesystem::path transcript;  // if set, every line in both directions is appended here
+};
+
+struct GrblStatus {
+  std::string state;  // Idle, Run, Hold, Alarm, Home, Jog, Door, Check, Sleep
+  double position = 0;
+};
+
+// "<Idle|MPos:15.000,0.000,0.000|FS:0,0>" -> state and the axis position.
+std::optional<GrblStatus> parse_grbl_status(const std::string& line, char axis = 'X');
+std::string grbl_error_meaning(int code);
+std::string grbl_alarm_meaning(int code);
+
+class GrblTurntable : public Turntable {
+ public:
+  static Result<std::unique_ptr<GrblTurntable>> open(const std::string& port, const GrblOptions& options = {});
+  Status home() override;
+  Status move_to(double degrees) override;
+  Result<double> position() override;
+  std::string describe() const override { return "grbl:" + port_.path() + " (" + banner_ + ")"; }
+  Result<GrblStatus> status();
+
+ private:
+  GrblTurntable(SerialPort port, GrblOptions o) : port_(std::move(port)), opt_(std::move(o)) {}
+  Status wait_banner(std::chrono::milliseconds timeout);
+  Status command(const std::string& line);  // waits for ok / error / alarm
+  Status check_async(const std::string& line);  // ALARM / reset / error lines at any time
+  SerialPort port_;
+  GrblOptions opt_;
+  std::string banner_;
+};
+
+}  // namespace s2r

@@ -1,0 +1,140 @@
+#include "capture/serial_port.h"
+
+#include <fcntl.h>
+#include <poll.h>
+#include <termios.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
+#include <utility>
+
+namespace s2r {
+
+namespace {
+
+speed_t baud_constant(int baud) {
+  switch (baud) {
+    case 9600: return B9600;
+    case 19200: return B19200;
+    case 38400: return B38400;
+    case 57600: return B57600;
+    case 115200: return B115200;
+    case 230400: return B230400;
+    case 250000: return B230400;  // not a POSIX constant; nearest standard
+    default: return 0;
+  }
+}
+
+std::string errno_message(const std::string& path, int err) {
+  if (err == EIO || err == ENODEV || err == ENXIO)
+    return "'" + path + "': device disconnected (" + std::strerror(err) + ")";
+  return "'" + path + "': " + std::strerror(err);
+}
+
+}  // namespace
+
+Result<SerialPort> SerialPort::open(const std::string& path, int baud) {
+  const speed_t speed = baud_constant(baud);
+  if (!speed) return fail("unsupported baud rate " + std::to_string(baud));
+  SerialPort p;
+  p.path_ = path;
+  p.fd_ = ::open(path.c_str(), O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
+  if (p.fd_ < 0) return fail("cannot open serial port " + errno_message(path, errno));
+  termios tio{};
+  if (tcgetattr(p.fd_, &tio) != 0) return fail("'" + path + "' is not a serial port: " + std::strerror(errno));
+  cfmakeraw(&tio);
+  tio.c_cflag &= ~static_cast<tcflag_t>(CSTOPB | PARENB | CRTSCTS);
+  tio.c_cflag |= CS8 | CLOCAL | CREAD;
+  tio.c_cc[VMIN] = 0;
+  tio.c_cc[VTIME] = 0;
+  cfsetispeed(&tio, speed);
+  cfsetospeed(&tio, speed);
+  if (tcsetattr(p.fd_, TCSANOW, &tio) != 0) return fail("cannot configure '" + path + "': " + std::strerror(errno));
+  return p;
+}
+
+SerialPort::SerialPort(SerialPort&& o) noexcept { *this = std::move(o); }
+SerialPort& SerialPort::operator=(SerialPort&& o) noexcept {
+  std::swap(fd_, o.fd_);
+  std::swap(path_, o.path_);
+  std::swap(pending_, o.pending_);
+  std::swap(tap_, o.tap_);
+  return *this;
+}
+SerialPort::~SerialPort() {
+  if (fd_ >= 0) ::close(fd_);
+}
+
+Status SerialPort::write(std::string_view bytes) {
+  if (tap_) {
+    std::string shown(bytes);
+    while (!shown.empty() && (shown.back() == '\n' || shown.back() == '\r')) shown.pop_back();
+    tap_('>', shown);
+  }
+  size_t done = 0;
+  while (done < bytes.size()) {
+    ssize_t n = ::write(fd_, bytes.data() + done, bytes.size() - done);
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      if (errno == EAGAIN) {
+        pollfd pfd{fd_, POLLOUT, 0};
+        if (::poll(&pfd, 1, 1000) <= 0) return fail("'" + path_ + "': write timed out");
+        continue;
+      }
+      return fail(errno_message(path_, errno));
+    }
+    done += static_cast<size_t>(n);
+  }
+  return {};
+}
+
+Result<std::string> SerialPort::read_line(std::chrono::milliseconds timeout) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  for (;;) {
+    const size_t nl = pending_.find('\n');
+    if (nl != std::string::npos) {
+      std::string line = pending_.substr(0, nl);
+      pending_.erase(0, nl + 1);
+      if (!line.empty() && line.back() == '\r') line.pop_back();
+      if (tap_) tap_('<', line);
+      return line;
+    }
+    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
+    if (left.count() <= 0) return fail("'" + path_ + "': timed out waiting for a reply");
+    pollfd pfd{fd_, POLLIN, 0};
+    int r = ::poll(&pfd, 1, static_cast<int>(left.count()));
+    if (r < 0) {
+      if (errno == EINTR) continue;
+      return fail(errno_message(path_, errno));
+    }
+    if (r == 0) continue;
+    if (pfd.revents & (POLLHUP | POLLERR | POLLNVAL)) {
+      char probe;
+      if (::read(fd_, &probe, 1) <= 0) return fail(errno_message(path_, errno ? errno : EIO));
+    }
+    char buf[256];
+    ssize_t n = ::read(fd_, buf, sizeof buf);
+    if (n < 0) {
+      if (errno == EAGAIN || errno == EINTR) continue;
+      return fail(errno_message(path_, errno));
+    }
+    if (n == 0) return fail(errno_message(path_, EIO));
+    for (ssize_t i = 0; i < n; ++i) {
+      const unsigned char c = static_cast<unsigned char>(buf[i]);
+      if (c == '\n' || c == '\r' || (c >= 0x20 && c < 0x7f)) pending_.push_back(static_cast<char>(c));
+    }
+    // A bare '\r' ends a line too: normalise it.
+    for (size_t i = 0; i < pending_.size(); ++i)
+      if (pending_[i] == '\r' && (i + 1 >= pending_.size() || pending_[i + 1] != '\n')) {
+        if (i + 1 < pending_.size()) pending_[i] = '\n';
+      }
+  }
+}
+
+void SerialPort::flush() {
+  tcflush(fd_, TCIOFLUSH);
+  pending_.clear();
+}
+
+}  // namespace s2r
