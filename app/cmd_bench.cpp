@@ -4,7 +4,10 @@
 #include <thread>
 
 #include "app/commands.h"
+#include "capture/pixel_formats.h"
+#include "capture/session.h"
 #include "capture/synth_rig.h"
+#include "core/image_io.h"
 #include "core/sweep.h"
 
 namespace s2r::cli {
@@ -72,6 +75,73 @@ int bench_rig(const fs::path& out, int repeats, const std::string& scene) {
   return finish(rep, out / "report.json");
 }
 
+// Per-frame capture overhead on one core: decode of the raw frame + the
+// atomic PNG write of a session frame, against the 30 fps frame period.
+int bench_capture(const fs::path& out, int repeats) {
+  Stopwatch total;
+  Report rep;
+  rep.stage = "bench.capture";
+  SweepTable t;
+  t.columns = {"pixels", "width", "height", "decode_ms", "write_ms", "overhead_ms", "period_over_overhead"};
+  struct Case { const char* name; uint32_t fourcc; int w, h; PngEffort effort; };
+  // The capture path (fast PNG) and, as peers in the same run, MJPEG input and compact PNG.
+  const Case cases[] = {{"YUYV 1280x720", kFourccYUYV, 1280, 720, PngEffort::kFast},
+                        {"Z16 848x480", kFourccZ16, 848, 480, PngEffort::kFast},
+                        {"MJPEG 1280x720 (peer)", kFourccMJPG, 1280, 720, PngEffort::kFast},
+                        {"YUYV 1280x720 compact PNG (peer)", kFourccYUYV, 1280, 720, PngEffort::kCompact}};
+  const fs::path scratch = out / "scratch";
+  for (const auto& c : cases) {
+    SynthOptions o;
+    o.scene = "blob";
+    o.width = c.w;
+    o.height = c.h;
+    o.spp = 1;
+    auto rig = SynthRig::create(o);
+    if (!rig) return error(rig.error().message);
+    const SynthView v = (*rig)->render(0);
+    const PngEffort effort = c.effort;
+    const std::string raw = c.fourcc == kFourccYUYV ? rgb_to_yuyv(v.color)
+                            : c.fourcc == kFourccMJPG ? rgb_to_mjpeg(v.color)
+                                                      : depth_to_z16(v.depth);
+    std::vector<double> dec, wr;
+    for (int i = 0; i < repeats; ++i) {
+      Stopwatch sw;
+      Status st;
+      if (c.fourcc == kFourccZ16) {
+        auto d = z16_to_depth(raw, c.w, c.h);
+        if (!d) return error(d.error().message);
+        dec.push_back(sw.seconds() * 1e3);
+        Stopwatch sw2;
+        st = write_image(scratch / frame_file_name(i, "png"), *d, effort);
+        wr.push_back(sw2.seconds() * 1e3);
+      } else {
+        auto rgb = c.fourcc == kFourccYUYV ? yuyv_to_rgb(raw, c.w, c.h) : mjpeg_to_rgb(raw, c.w, c.h);
+        if (!rgb) return error(rgb.error().message);
+        dec.push_back(sw.seconds() * 1e3);
+        Stopwatch sw2;
+        st = write_image(scratch / frame_file_name(i, "png"), *rgb, effort);
+        wr.push_back(sw2.seconds() * 1e3);
+      }
+      if (!st) return error(st.error().message);
+    }
+    const double d = median(dec), w = median(wr);
+    t.rows.push_back({double(c.w) * c.h, double(c.w), double(c.h), d, w, d + w, (1000.0 / 30.0) / (d + w)});
+    t.row_labels.push_back(c.name);
+    std::fprintf(stderr, "%-34s decode %.2f ms + write %.2f ms = %.2f ms per frame; 30 fps period / overhead = %.2f\n",
+                 c.name, d, w, d + w, (1000.0 / 30.0) / (d + w));
+    rep.errors[std::string("period_over_overhead ") + c.name] = (1000.0 / 30.0) / (d + w);
+  }
+  std::error_code ec;
+  fs::remove_all(scratch, ec);
+  if (auto st = t.write_csv(out / "capture.csv"); !st) return error(st.error().message);
+  PlotSpec spec{"Capture overhead per frame (decode + atomic PNG write, one core)", "pixels per frame",
+                "milliseconds (median)", "pixels", {"decode_ms", "write_ms", "overhead_ms"}, false, false, false};
+  if (auto st = plot_png(t, spec, out / "capture.png"); !st) rep.warnings.push_back(st.error().message);
+  rep.counts["repeats"] = repeats;
+  rep.seconds = total.seconds();
+  return finish(rep, out / "report.json");
+}
+
 }  // namespace
 
 void add_bench_commands(CLI::App& app) {
@@ -80,7 +150,7 @@ void add_bench_commands(CLI::App& app) {
   auto out = std::make_shared<std::string>();
   auto repeats = std::make_shared<int>(3);
   auto scene = std::make_shared<std::string>("blob");
-  sub->add_option("stage", *stage, "rig (render time vs image size); later: calibrate, register, raytrace, envmap")
+  sub->add_option("stage", *stage, "rig (render time vs image size), capture (per-frame decode + write overhead)")
       ->required();
   sub->add_option("--out", *out, "output folder")->required();
   sub->add_option("--repeats", *repeats, "renders per point (median)")->capture_default_str();
@@ -88,7 +158,8 @@ void add_bench_commands(CLI::App& app) {
   sub->callback([=] {
     set_runner([=] {
       if (*stage == "rig") return bench_rig(*out, std::max(1, *repeats), *scene);
-      std::fprintf(stderr, "s2r bench %s: not yet available in this build (only 'rig')\n", stage->c_str());
+      if (*stage == "capture") return bench_capture(*out, std::max(5, *repeats * 10));
+      std::fprintf(stderr, "s2r bench %s: not yet available in this build (only 'rig' and 'capture')\n", stage->c_str());
       return 2;
     });
   });

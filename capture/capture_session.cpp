@@ -46,6 +46,7 @@ Result<Report> run_capture(CaptureDevices& dev, const CaptureOptions& o, const s
     writer.emplace(std::move(*w));
     if (auto st = dev.table->home(); !st) return std::unexpected(with_context(st.error(), "homing the turntable"));
   }
+  writer->set_fast_writes(o.fast_writes);
   if (writer->next_index() >= o.steps) {
     rep.seconds = clock.seconds();
     rep.counts["frames"] = writer->next_index();

@@ -24,6 +24,7 @@ struct CaptureOptions {
   bool resume = false;
   int flush_frames = 2;   // colour frames dropped after each move (stale buffers)
   int depth_frames = 3;   // depth frames grabbed; the nearest in time to colour is kept
+  bool fast_writes = true;  // uncompressed PNG: keeps up with 30 fps at 1280x720 on one core
 };
 
 struct CaptureDevices {

@@ -261,6 +261,11 @@ Result<SessionWriter> SessionWriter::create(Session header) {
 }
 
 Result<SessionWriter> SessionWriter::resume(const fs::path& dir) {
+  // Temporaries of writes a kill interrupted are never part of the session.
+  std::error_code ec;
+  for (const char* sub : {"", "color", "depth", "points"})
+    for (const auto& e : fs::directory_iterator(dir / sub, ec))
+      if (e.path().filename().string().find(".tmp-") != std::string::npos) fs::remove(e.path(), ec);
   auto s = load_session(dir);
   if (!s) return std::unexpected(with_context(s.error(), "cannot resume"));
   return SessionWriter(std::move(*s));
@@ -272,11 +277,13 @@ Status SessionWriter::add_frame(Frame frame, const ImageU8* color, const ImageU1
                 std::to_string(next_index()));
   if (color) {
     frame.color = "color/" + frame_file_name(frame.index, "png");
-    if (auto st = write_image(session_.root / frame.color, *color); !st) return st;
+    if (auto st = write_image(session_.root / frame.color, *color, fast_ ? PngEffort::kFast : PngEffort::kCompact); !st)
+      return st;
   }
   if (depth) {
     frame.depth = "depth/" + frame_file_name(frame.index, "png");
-    if (auto st = write_image(session_.root / frame.depth, *depth); !st) return st;
+    if (auto st = write_image(session_.root / frame.depth, *depth, fast_ ? PngEffort::kFast : PngEffort::kCompact); !st)
+      return st;
   }
   json line = {{"frame", frame_to_json(frame)}};
   if (auto st = append_line_durable(session_.root / "session.journal", line.dump()); !st) return st;

@@ -106,12 +106,15 @@ class SessionWriter {
   // `frame.index` must be next_index(); file names are filled in.
   Status add_frame(Frame frame, const ImageU8* color, const ImageU16* depth);
   int next_index() const { return static_cast<int>(session_.frames.size()); }
+  // Store frames without PNG compression (a live capture keeping up with its camera).
+  void set_fast_writes(bool fast) { fast_ = fast; }
   const Session& session() const { return session_; }
   Session& mutable_header() { return session_; }  // devices/notes before frames
 
  private:
   explicit SessionWriter(Session s) : session_(std::move(s)) {}
   Session session_;
+  bool fast_ = false;
 };
 
 std::string frame_file_name(int index, const char* ext);  // "0007.png"

@@ -33,13 +33,18 @@ Result<Image<T>> read_as(const fs::path& path, oiio::TypeDesc type) {
 }
 
 template <class T>
-Status write_as(const fs::path& path, const Image<T>& image, oiio::TypeDesc type) {
+Status write_as(const fs::path& path, const Image<T>& image, oiio::TypeDesc type,
+                PngEffort effort = PngEffort::kCompact) {
   if (image.empty()) return fail("'" + path.string() + "': refusing to write an empty image");
   return write_via_temp(path, [&](const fs::path& tmp) -> Status {
     auto out = oiio::ImageOutput::create(tmp.string());
     if (!out) return fail("no image writer for '" + path.string() + "': " + oiio::geterror());
     oiio::ImageSpec spec(image.width, image.height, image.channels, type);
     if (type == oiio::TypeDesc::FLOAT) spec.attribute("compression", "zip");
+    // Camera frames are noisy: deflate level 6 with adaptive filters costs ~7x
+    // level 1 with one filter for a few percent of size (s2r bench capture).
+    spec.attribute("png:compressionLevel", effort == PngEffort::kFast ? 0 : 1);
+    spec.attribute("png:filter", 16);  // PNG_FILTER_SUB only
     if (!out->open(tmp.string(), spec)) return fail(out->geterror());
     if (!out->write_image(type, image.data.data())) return fail(out->geterror());
     if (!out->close()) return fail(out->geterror());
@@ -72,11 +77,11 @@ Result<ImageF> read_image_float(const fs::path& path) {
   return img;
 }
 
-Status write_image(const fs::path& path, const ImageU8& image) {
-  return write_as(path, image, oiio::TypeDesc::UINT8);
+Status write_image(const fs::path& path, const ImageU8& image, PngEffort effort) {
+  return write_as(path, image, oiio::TypeDesc::UINT8, effort);
 }
-Status write_image(const fs::path& path, const ImageU16& image) {
-  return write_as(path, image, oiio::TypeDesc::UINT16);
+Status write_image(const fs::path& path, const ImageU16& image, PngEffort effort) {
+  return write_as(path, image, oiio::TypeDesc::UINT16, effort);
 }
 Status write_image(const fs::path& path, const ImageF& image) {
   return write_as(path, image, oiio::TypeDesc::FLOAT);

@@ -20,8 +20,12 @@ Result<ImageU8> read_image_u8(const std::filesystem::path& path);
 Result<ImageU16> read_image_u16(const std::filesystem::path& path);  // 16-bit PNG depth
 Result<ImageF> read_image_float(const std::filesystem::path& path);  // EXR/HDR or scaled
 
-Status write_image(const std::filesystem::path& path, const ImageU8& image);
-Status write_image(const std::filesystem::path& path, const ImageU16& image);
+// PNG effort: kCompact deflates (level 1, SUB filter); kFast stores without
+// compression so a capture keeps up with the camera (s2r bench capture).
+enum class PngEffort { kCompact, kFast };
+
+Status write_image(const std::filesystem::path& path, const ImageU8& image, PngEffort effort = PngEffort::kCompact);
+Status write_image(const std::filesystem::path& path, const ImageU16& image, PngEffort effort = PngEffort::kCompact);
 Status write_image(const std::filesystem::path& path, const ImageF& image);  // EXR
 
 }  // namespace s2r
