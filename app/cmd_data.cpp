@@ -5,6 +5,9 @@
 #include "app/commands.h"
 #include <csignal>
 
+#include <glob.h>
+
+#include "calibrate/intrinsics.h"
 #include "capture/capture_devices.h"
 #include "capture/capture_session.h"
 #include "capture/import_datasets.h"
@@ -172,6 +175,60 @@ void add_capture(CLI::App& app) {
   });
 }
 
+std::vector<fs::path> expand_glob(const std::string& pattern) {
+  std::vector<fs::path> out;
+  glob_t g{};
+  if (::glob(pattern.c_str(), 0, nullptr, &g) == 0)
+    for (size_t i = 0; i < g.gl_pathc; ++i) out.emplace_back(g.gl_pathv[i]);
+  globfree(&g);
+  return out;
+}
+
+void add_calibrate(CLI::App& app) {
+  auto* cal = app.add_subcommand("calibrate", "Camera intrinsics, depth-to-colour, turntable axis");
+  cal->require_subcommand(1);
+  auto* in = cal->add_subcommand("intrinsics", "Intrinsics from chessboard or ChArUco photos (OpenCV)");
+  struct Args {
+    std::string images, board, out, report;
+    double reject = 3.0;
+  };
+  auto a = std::make_shared<Args>();
+  in->add_option("--images", a->images, "glob of board photos, e.g. 'calib/*.jpg'")->required();
+  in->add_option("--board", a->board, "chessboard:COLSxROWS:SQUARE_M or charuco:COLSxROWS:SQUARE_M:MARKER_M[:DICT]")
+      ->required();
+  in->add_option("--out", a->out, "calibration file to write (JSON, s2r.calibration)")->required();
+  in->add_option("--reject-factor", a->reject, "drop a view whose RMS exceeds this x the median")->capture_default_str();
+  in->add_option("--report", a->report, "report path (default: beside --out)");
+  in->callback([a] {
+    set_runner([a] {
+      auto board = BoardSpec::parse(a->board);
+      if (!board) return error(board.error().message);
+      const auto files = expand_glob(a->images);
+      if (files.empty()) return error("no file matches '" + a->images + "'");
+      IntrinsicsOptions o;
+      o.board = *board;
+      o.reject_factor = a->reject;
+      auto r = calibrate_intrinsics_from_files(files, o);
+      if (!r) return error(r.error().message);
+      for (const auto& v : r->views)
+        std::printf("%-24s %s %s\n", v.name.c_str(),
+                    v.used ? ("rms " + std::to_string(v.rms_px) + " px").c_str() : "not used", v.note.c_str());
+      const auto& K = r->calibration.intrinsics;
+      std::printf("fx %.3f +- %.3f  fy %.3f +- %.3f  cx %.3f +- %.3f  cy %.3f +- %.3f\n", K.fx, r->stddev[0], K.fy,
+                  r->stddev[1], K.cx, r->stddev[2], K.cy, r->stddev[3]);
+      std::printf("dist %.5f %.5f %.5f %.5f %.5f   RMS %.4f px over %d views\n", K.dist[0], K.dist[1], K.dist[2],
+                  K.dist[3], K.dist[4], r->calibration.rms_px, r->calibration.views);
+      Calibration c;
+      if (fs::exists(a->out))
+        if (auto old = load_calibration(a->out)) c = *old;  // keep the other parts of an existing file
+      c.color = r->calibration;
+      if (auto st = save_calibration(a->out, c); !st) return error(st.error().message);
+      return finish(r->report, a->report.empty() ? fs::path(a->out).parent_path() / "report.json" : fs::path(a->report));
+    });
+  });
+  add_not_yet(*cal, "axis", "Turntable axis from board views at known table angles");
+}
+
 void add_devices(CLI::App& app) {
   auto* sub = app.add_subcommand("devices", "List cameras (V4L2 nodes, libcamera), depth nodes and serial ports");
   sub->callback([] {
@@ -219,7 +276,7 @@ void add_data_commands(CLI::App& app) {
   add_inspect(app);
   add_devices(app);
   add_capture(app);
-  add_not_yet(app, "calibrate", "Intrinsics, depth-to-colour, turntable axis");
+  add_calibrate(app);
   add_not_yet(app, "register", "Register all views at once");
   add_not_yet(app, "reconstruct", "Fusion, microfacets, octree, per-camera depth");
 }
