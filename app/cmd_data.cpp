@@ -134,6 +134,11 @@ void add_capture(CLI::App& app) {
     set_runner([a] {
       if (!a->sim && a->replay.empty() && a->camera.empty())
         return error("choose the devices: --sim, --replay DIR, or --camera DEV --turntable TTY");
+      // From here on SIGINT/SIGTERM end the session cleanly between frames.
+      struct sigaction sa {};
+      sa.sa_handler = on_stop_signal;
+      sigaction(SIGINT, &sa, nullptr);
+      sigaction(SIGTERM, &sa, nullptr);
       DeviceOptions d;
       d.width = a->width;
       d.height = a->height;
@@ -158,10 +163,6 @@ void add_capture(CLI::App& app) {
       o.steps = a->steps;
       o.resume = a->resume;
       o.flush_frames = a->flush >= 0 ? a->flush : (a->sim || !a->replay.empty() ? 0 : 2);
-      struct sigaction sa {};
-      sa.sa_handler = on_stop_signal;
-      sigaction(SIGINT, &sa, nullptr);
-      sigaction(SIGTERM, &sa, nullptr);
       auto r = run_capture((*rig)->devices, o, &g_stop);
       if (!r) {
         std::fprintf(stderr, "s2r: error: %s\n", r.error().message.c_str());

@@ -94,7 +94,9 @@ TEST(CaptureKill, SigtermEndsCleanlyThenResume) {
   const fs::path out = fs::temp_directory_path() / ("s2r_term_" + std::to_string(getpid()));
   fs::remove_all(out);
   const pid_t pid = spawn(out, false);
-  std::this_thread::sleep_for(std::chrono::milliseconds(700));
+  // Once frames are being written, ask it to stop.
+  for (int i = 0; i < 200 && !fs::exists(out / "session.journal"); ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
   kill(pid, SIGTERM);
   const int code = wait_exit(pid);
   EXPECT_TRUE(code == 130 || code == 0) << code;  // 0 only if it had already finished
