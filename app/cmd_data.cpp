@@ -8,6 +8,7 @@
 #include <glob.h>
 
 #include "calibrate/intrinsics.h"
+#include "calibrate/turntable_axis.h"
 #include "capture/capture_devices.h"
 #include "capture/capture_session.h"
 #include "capture/import_datasets.h"
@@ -227,7 +228,61 @@ void add_calibrate(CLI::App& app) {
       return finish(r->report, a->report.empty() ? fs::path(a->out).parent_path() / "report.json" : fs::path(a->report));
     });
   });
-  add_not_yet(*cal, "axis", "Turntable axis from board views at known table angles");
+  auto* ax = cal->add_subcommand("axis", "Turntable axis from board views at known table angles (Ceres)");
+  struct AxisArgs {
+    std::string session, board = "chessboard:9x6:0.02", out, intrinsics, report;
+  };
+  auto b = std::make_shared<AxisArgs>();
+  ax->add_option("session", b->session, "session whose frames show a board standing on the table")->required();
+  ax->add_option("--board", b->board, "board spec")->capture_default_str();
+  ax->add_option("--out", b->out, "calibration file to write (the axis is added to what it holds)")->required();
+  ax->add_option("--intrinsics", b->intrinsics, "calibration file with the colour intrinsics (default: the session's)");
+  ax->add_option("--report", b->report, "report path (default: beside --out)");
+  ax->callback([b] {
+    set_runner([b] {
+      auto board = BoardSpec::parse(b->board);
+      if (!board) return error(board.error().message);
+      auto s = load_session(b->session);
+      if (!s) return error(s.error().message);
+      Calibration c;
+      if (fs::exists(b->out))
+        if (auto old = load_calibration(b->out)) c = *old;
+      std::optional<Intrinsics> K;
+      if (!b->intrinsics.empty()) {
+        auto ic = load_calibration(b->intrinsics);
+        if (!ic) return error(ic.error().message);
+        if (!ic->color) return error(b->intrinsics + ": no colour intrinsics in it");
+        K = ic->color->intrinsics;
+        c.color = ic->color;
+      } else if (c.color) {
+        K = c.color->intrinsics;
+      } else if (s->color) {
+        K = s->color->intrinsics;
+      }
+      if (!K) return error("no intrinsics: pass --intrinsics CALIB");
+      std::vector<AxisView> views;
+      for (const auto& f : s->frames) {
+        if (f.color.empty()) continue;
+        auto im = load_color(*s, f);
+        if (!im) return error(im.error().message);
+        auto d = detect_board(*im, *board);
+        if (!d) return error(d.error().message);
+        views.push_back({f.table_angle_commanded_deg, std::move(*d), f.color});
+      }
+      auto r = calibrate_turntable_axis(views, *K);
+      if (!r) return error(r.error().message);
+      const auto& a = r->axis;
+      std::printf("axis direction (camera) %.6f %.6f %.6f  point %.5f %.5f %.5f m  RMS %.3f px\n",
+                  a.direction_camera.x(), a.direction_camera.y(), a.direction_camera.z(), a.point_camera.x(),
+                  a.point_camera.y(), a.point_camera.z(), r->rms_px);
+      for (size_t i = 0; i < r->used.size(); ++i)
+        std::printf("  %-20s commanded %8.3f  measured %8.3f  error %+.3f deg\n", r->used[i].c_str(),
+                    r->commanded_deg[i], a.step_angles_deg[i], a.step_angles_deg[i] - r->commanded_deg[i]);
+      c.axis = a;
+      if (auto st = save_calibration(b->out, c); !st) return error(st.error().message);
+      return finish(r->report, b->report.empty() ? fs::path(b->out).parent_path() / "report.json" : fs::path(b->report));
+    });
+  });
 }
 
 void add_devices(CLI::App& app) {

@@ -78,7 +78,7 @@ Result<IntrinsicsResult> calibrate_intrinsics(const std::vector<BoardDetection>&
     }
   };
   // Few views cannot pin every parameter: fix what they cannot see.
-  int flags = 0;
+  int flags = o.fix_k3 ? cv::CALIB_FIX_K3 : 0;
   if (static_cast<int>(used.size()) < o.min_views) {
     flags = cv::CALIB_FIX_PRINCIPAL_POINT | cv::CALIB_ZERO_TANGENT_DIST | cv::CALIB_FIX_K2 | cv::CALIB_FIX_K3;
     rep.warnings.push_back("only " + std::to_string(used.size()) +

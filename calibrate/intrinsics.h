@@ -20,6 +20,7 @@ struct IntrinsicsOptions {
   BoardSpec board;
   double reject_factor = 3.0;  // a view whose RMS exceeds factor x the median is dropped
   int min_views = 3;           // below this, principal point and higher distortion are fixed
+  bool fix_k3 = false;         // most lenses need no k3; fixing it steadies fits from few poses
 };
 
 struct ViewResult {

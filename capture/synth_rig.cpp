@@ -83,6 +83,8 @@ struct SynthRig::Impl {
   std::vector<Geometry> geoms;
   // Ray directions (camera frame, z = 1) per pixel: centre, colour sub-samples, depth neighbours.
   std::vector<Vector3f> color_centre, color_sub, depth_centre, depth_nb;
+  Eigen::Isometry3d board_from_world = Eigen::Isometry3d::Identity();
+  Eigen::Matrix3d world_from_board_linear = Eigen::Matrix3d::Identity();
 
   ~Impl() {
     if (rtc) rtcReleaseScene(rtc);
@@ -155,6 +157,16 @@ struct SynthRig::Impl {
       Vector3f ns = (1 - h.u - h.v) * N[f[0]] + h.u * N[f[1]] + h.v * N[f[2]];
       if (ns.squaredNorm() > 0) n = ns.normalized();
       switch (g.texture) {
+        case synth::Texture::kChessboard: {
+          const Eigen::Vector3d b = board_from_world * p.cast<double>();
+          // The print is on the -z side (OpenCV board frames: z points away from the camera).
+          const bool front = (world_from_board_linear.col(2).cast<float>()).dot(dir) > 0;
+          const int cx = static_cast<int>(std::floor(b.x() / scene.board_square_m)) + 1;
+          const int cy = static_cast<int>(std::floor(b.y() / scene.board_square_m)) + 1;
+          const bool inside = cx >= 0 && cy >= 0 && cx < scene.board_squares_x && cy < scene.board_squares_y;
+          albedo = Vector3f::Constant(front && inside && (cx + cy) % 2 == 0 ? 0.04f : 0.85f);
+          return albedo * (0.55f + 0.45f * std::max(0.f, (n.dot(dir) > 0 ? -n : n).dot(light)));
+        }
         case synth::Texture::kPatches: albedo = patch_albedo(p, 0.012f); break;
         case synth::Texture::kWalls: albedo = patch_albedo(p, 0.3f); break;
         default: albedo = Vector3f(0.55f, 0.5f, 0.45f); break;
@@ -176,6 +188,8 @@ Result<std::unique_ptr<SynthRig>> SynthRig::create(const SynthOptions& options) 
   auto scene = synth::make_scene(options.scene, options.seed, data);
   if (!scene) return std::unexpected(scene.error());
   impl->scene = std::move(*scene);
+  impl->board_from_world = impl->scene.world_from_board.inverse();
+  impl->world_from_board_linear = impl->scene.world_from_board.linear();
 
   const double s = options.width / 640.0;
   const int w = options.width, h = options.height;
@@ -263,6 +277,7 @@ const Intrinsics& SynthRig::depth_intrinsics() const { return impl_->depth_K; }
 const Eigen::Isometry3d& SynthRig::color_from_depth() const { return impl_->color_from_depth; }
 Eigen::Isometry3d SynthRig::world_from_camera(int view) const { return impl_->world_from_camera(view); }
 Eigen::Isometry3d SynthRig::world_from_camera_at(double a) const { return impl_->world_from_camera_at(a); }
+Eigen::Isometry3d SynthRig::world_from_board() const { return impl_->scene.world_from_board; }
 double SynthRig::commanded_angle_deg(int view) const { return view * 360.0 / impl_->opt.views; }
 double SynthRig::true_angle_deg(int view) const { return impl_->true_angle_deg(view); }
 Vector3d SynthRig::axis_dir_camera() const {
@@ -380,6 +395,7 @@ Result<SynthTruth> load_synth_truth(const fs::path& session_dir) {
     t.color_from_depth = doc.rigid("color_from_depth");
     t.axis_dir_camera = vec3_from(doc, "axis_dir_camera");
     t.axis_point_camera = vec3_from(doc, "axis_point_camera");
+    if (doc.has("world_from_board")) t.world_from_board = doc.rigid("world_from_board");
     FieldReader frames = doc.at("frames");
     for (size_t i = 0; i < frames.array_size(); ++i) {
       t.true_angle_deg.push_back(frames.index(i).number("table_angle_true_deg"));
@@ -473,6 +489,7 @@ Result<Report> synth_session(const SynthOptions& options, const fs::path& out) {
       {"depth_files", "ground_truth/depth/NNNN.exr: exact z (m) in the depth camera; "
                       "depth_color/: exact z in the colour camera; labels/: 0 none, 1 surface, 2 strand"},
       {"frames", frames}};
+  if (options.scene == "board") truth["world_from_board"] = rigid_to_json(r.world_from_board());
   if (auto st = write_file_atomic(gt / "rig.json", dump_json(truth)); !st) return std::unexpected(st.error());
   if (auto st = r.write_geometry(gt); !st) return std::unexpected(st.error());
 

@@ -17,6 +17,7 @@
 #include <filesystem>
 #include <memory>
 #include <string>
+#include <optional>
 #include <vector>
 
 #include <Eigen/Geometry>
@@ -68,6 +69,7 @@ class SynthRig {
   const Intrinsics& depth_intrinsics() const;
   const Eigen::Isometry3d& color_from_depth() const;
   Eigen::Isometry3d world_from_camera_at(double table_angle_deg) const;
+  Eigen::Isometry3d world_from_board() const;  // the "board" scene's chessboard frame
   // Colour camera pose at view i (world = object frame for object-centre
   // scenes, the room for camera-centre scenes).
   Eigen::Isometry3d world_from_camera(int view) const;
@@ -96,6 +98,7 @@ struct SynthTruth {
   Eigen::Isometry3d color_from_depth = Eigen::Isometry3d::Identity();
   Eigen::Vector3d axis_dir_camera = Eigen::Vector3d::UnitZ(), axis_point_camera = Eigen::Vector3d::Zero();
   std::vector<double> true_angle_deg;
+  std::optional<Eigen::Isometry3d> world_from_board;  // the "board" scene
   std::vector<Eigen::Isometry3d> world_from_camera;  // colour camera, per frame
 };
 Result<SynthTruth> load_synth_truth(const std::filesystem::path& session_dir);

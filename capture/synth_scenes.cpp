@@ -1,5 +1,6 @@
 #include "capture/synth_scenes.h"
 
+#include <array>
 #include <cmath>
 #include <numbers>
 #include <random>
@@ -173,16 +174,51 @@ Scene room() {
   return s;
 }
 
+// A chessboard on a stand, leaning back 20 degrees, its printed side facing the
+// camera at table angle 0; a 15 mm white margin around 10x7 squares of 20 mm.
+Scene board() {
+  Scene s;
+  s.name = "board";
+  const double sq = 0.02, margin = 0.015;
+  const double w = 10 * sq + 2 * margin, h = 7 * sq + 2 * margin;
+  // Board frame: origin at the first inner corner; x right, y down the board, z into it.
+  Eigen::Isometry3d world_from_board = Eigen::Isometry3d::Identity();
+  const double lean = 20.0 * std::numbers::pi / 180;
+  const Vector3d x = Vector3d::UnitX();
+  const Vector3d y = Vector3d(0, -std::sin(lean), -std::cos(lean));  // down the board
+  const Vector3d z = x.cross(y);  // into the board, away from the camera at angle 0
+  world_from_board.linear().col(0) = x;
+  world_from_board.linear().col(1) = y;
+  world_from_board.linear().col(2) = z;
+  const Vector3d top_left = Vector3d(-w / 2, 0.03 + std::sin(lean) * h, 0.03 + std::cos(lean) * h);
+  world_from_board.translation() = top_left + (margin + sq) * x + (margin + sq) * y;
+  Mesh m;
+  const Vector3d o = top_left;
+  for (const Vector3d& c : std::array<Vector3d, 4>{o, o + w * x, o + w * x + h * y, o + h * y})
+    m.vertices.push_back(c.cast<float>());
+  m.faces = {{0, 2, 1}, {0, 3, 2}};
+  m.compute_vertex_normals();
+  s.surfaces.push_back({std::move(m), Texture::kChessboard});
+  s.world_from_board = world_from_board;
+  s.board_squares_x = 10;
+  s.board_squares_y = 7;
+  s.board_square_m = sq;
+  s.table_from_camera = look_at({0, -0.42, 0.30}, {0, 0, 0.10}, 1.5);
+  s.light_dir_lab = Vector3d(0.1, -0.9, 0.5).normalized();
+  return s;
+}
+
 }  // namespace
 
-std::vector<std::string> scene_names() { return {"bunny", "fuzzy", "room", "blob"}; }
+std::vector<std::string> scene_names() { return {"bunny", "fuzzy", "room", "blob", "board"}; }
 
 Result<Scene> make_scene(const std::string& name, uint64_t seed, const fs::path& data_dir) {
   if (name == "bunny") return bunny(data_dir);
   if (name == "fuzzy") return fuzzy(seed);
   if (name == "room") return room();
   if (name == "blob") return blob();
-  return fail("unknown scene '" + name + "' (choose bunny, fuzzy, room or blob)");
+  if (name == "board") return board();
+  return fail("unknown scene '" + name + "' (choose bunny, fuzzy, room, blob or board)");
 }
 
 }  // namespace s2r::synth

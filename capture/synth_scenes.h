@@ -17,7 +17,7 @@
 namespace s2r::synth {
 
 enum Label : uint8_t { kNothing = 0, kSurface = 1, kStrand = 2 };
-enum class Texture { kPatches, kWalls, kPlain };
+enum class Texture { kPatches, kWalls, kPlain, kChessboard };
 
 struct Surface {
   Mesh mesh;  // with vertex normals, in the world frame
@@ -41,11 +41,17 @@ struct Scene {
   Eigen::Isometry3d table_from_camera = Eigen::Isometry3d::Identity();
   Eigen::Vector3d light_dir_lab = Eigen::Vector3d::UnitZ();  // towards the light
   double far_m = 10;
+  // kChessboard surfaces: the board frame (x along columns, y along rows, z
+  // the printed side's normal) and the squares.
+  Eigen::Isometry3d world_from_board = Eigen::Isometry3d::Identity();
+  int board_squares_x = 10, board_squares_y = 7;
+  double board_square_m = 0.02;
 };
 
 // Names: "bunny" (textured Stanford bunny), "fuzzy" (core + thousands of thin
 // strands), "room" (camera in the middle of a furnished room), "blob" (a
-// closed textured object needing no external data).
+// closed textured object needing no external data), "board" (a printed
+// chessboard standing on the table, 9x6 inner corners of 20 mm, for calibration).
 Result<Scene> make_scene(const std::string& name, uint64_t seed,
                          const std::filesystem::path& data_dir);
 std::vector<std::string> scene_names();
