@@ -34,6 +34,16 @@ GrblOptions grbl_options(const DeviceOptions& o) {
   return g;
 }
 
+// Simulated and replayed cameras: the recording's device path and settings.
+V4l2Config recorded_camera_config(const DeviceOptions& o) {
+  V4l2Config vc;
+  vc.width = o.width;
+  vc.height = o.height;
+  vc.exposure_100us = 100;
+  vc.timeout_ms = 5000;
+  return vc;
+}
+
 ColorSensor color_sensor(const Camera& c, const std::string& driver) {
   ColorSensor s;
   s.driver = driver;
@@ -100,11 +110,7 @@ Result<std::unique_ptr<CaptureRig>> make_sim_capture(const SimOptions& sim, cons
   cc.source = [render](uint32_t) { return render(false); };
   auto cio = maybe_record(make_sim_v4l2_io(cc), o, "color.v4l2rec");
   if (!cio) return std::unexpected(cio.error());
-  V4l2Config vc;
-  vc.width = o.width;
-  vc.height = o.height;
-  vc.exposure_100us = 100;
-  vc.timeout_ms = 5000;
+  const V4l2Config vc = recorded_camera_config(o);
   auto color = V4l2Camera::open(std::move(*cio), "/dev/video-sim0", vc);
   if (!color) return std::unexpected(color.error());
 
@@ -149,11 +155,7 @@ Result<std::unique_ptr<CaptureRig>> make_replay_capture(const fs::path& dir, con
   rig->firmware = std::move(*fw);
   auto cio = make_replay_v4l2_io(dir / "color.v4l2rec");
   if (!cio) return std::unexpected(cio.error());
-  V4l2Config vc;
-  vc.width = o.width;
-  vc.height = o.height;
-  vc.exposure_100us = 100;
-  vc.timeout_ms = 5000;
+  const V4l2Config vc = recorded_camera_config(o);
   auto color = V4l2Camera::open(std::move(*cio), "/dev/video-sim0", vc);
   if (!color) return std::unexpected(color.error());
   rig->devices.header.color = color_sensor(**color, "v4l2-replay");
