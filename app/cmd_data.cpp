@@ -193,6 +193,7 @@ void add_calibrate(CLI::App& app) {
   struct Args {
     std::string images, board, out, report;
     double reject = 3.0;
+    bool fix_k3 = false;
   };
   auto a = std::make_shared<Args>();
   in->add_option("--images", a->images, "glob of board photos, e.g. 'calib/*.jpg'")->required();
@@ -200,6 +201,7 @@ void add_calibrate(CLI::App& app) {
       ->required();
   in->add_option("--out", a->out, "calibration file to write (JSON, s2r.calibration)")->required();
   in->add_option("--reject-factor", a->reject, "drop a view whose RMS exceeds this x the median")->capture_default_str();
+  in->add_flag("--fix-k3", a->fix_k3, "keep k3 = 0 (most lenses; steadier with few or central views)");
   in->add_option("--report", a->report, "report path (default: beside --out)");
   in->callback([a] {
     set_runner([a] {
@@ -210,6 +212,7 @@ void add_calibrate(CLI::App& app) {
       IntrinsicsOptions o;
       o.board = *board;
       o.reject_factor = a->reject;
+      o.fix_k3 = a->fix_k3;
       auto r = calibrate_intrinsics_from_files(files, o);
       if (!r) return error(r.error().message);
       for (const auto& v : r->views)

@@ -98,7 +98,14 @@ struct SynthRig::Impl {
     const double sign = scene.layout == Layout::kObjectCentre ? -1.0 : 1.0;
     Eigen::Isometry3d r = Eigen::Isometry3d::Identity();
     r.linear() = Eigen::AngleAxisd(sign * a, Vector3d::UnitZ()).toRotationMatrix();
-    return r * scene.table_from_camera;
+    if (scene.camera_wobble_deg == 0) return r * scene.table_from_camera;
+    // Elevation swing about the target, then a roll about the optical axis.
+    const double w = scene.camera_wobble_deg * kDeg;
+    const Eigen::Isometry3d swing = Eigen::Translation3d(scene.wobble_centre) *
+                                    Eigen::AngleAxisd(w * std::sin(3 * a), Vector3d::UnitX()) *
+                                    Eigen::Translation3d(-scene.wobble_centre);
+    const Eigen::Isometry3d roll(Eigen::AngleAxisd(0.75 * w * std::cos(2 * a), Vector3d::UnitZ()));
+    return r * swing * scene.table_from_camera * roll;
   }
 
   Vector3d light_world_at(double angle_deg) const {

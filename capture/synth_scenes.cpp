@@ -210,7 +210,7 @@ Scene board() {
 
 }  // namespace
 
-std::vector<std::string> scene_names() { return {"bunny", "fuzzy", "room", "blob", "board"}; }
+std::vector<std::string> scene_names() { return {"bunny", "fuzzy", "room", "blob", "board", "board_wobble"}; }
 
 Result<Scene> make_scene(const std::string& name, uint64_t seed, const fs::path& data_dir) {
   if (name == "bunny") return bunny(data_dir);
@@ -218,7 +218,14 @@ Result<Scene> make_scene(const std::string& name, uint64_t seed, const fs::path&
   if (name == "room") return room();
   if (name == "blob") return blob();
   if (name == "board") return board();
-  return fail("unknown scene '" + name + "' (choose bunny, fuzzy, room, blob or board)");
+  if (name == "board_wobble") {
+    Scene s = board();
+    s.name = "board_wobble";
+    s.camera_wobble_deg = 20;
+    s.wobble_centre = Vector3d(0, 0, 0.10);
+    return s;
+  }
+  return fail("unknown scene '" + name + "' (choose bunny, fuzzy, room, blob, board or board_wobble)");
 }
 
 }  // namespace s2r::synth

@@ -46,12 +46,19 @@ struct Scene {
   Eigen::Isometry3d world_from_board = Eigen::Isometry3d::Identity();
   int board_squares_x = 10, board_squares_y = 7;
   double board_square_m = 0.02;
+  // Camera wobble (the "board_wobble" scene): per view the camera also swings
+  // in elevation about `wobble_centre` and rolls, by up to this many degrees,
+  // as a hand-held board would vary its tilt. Not a turntable motion.
+  double camera_wobble_deg = 0;
+  Eigen::Vector3d wobble_centre = Eigen::Vector3d::Zero();
 };
 
 // Names: "bunny" (textured Stanford bunny), "fuzzy" (core + thousands of thin
 // strands), "room" (camera in the middle of a furnished room), "blob" (a
 // closed textured object needing no external data), "board" (a printed
-// chessboard standing on the table, 9x6 inner corners of 20 mm, for calibration).
+// chessboard standing on the table, 9x6 inner corners of 20 mm, for calibration),
+// "board_wobble" (the same board seen from views that also vary in elevation and
+// roll: intrinsics data, not a turntable).
 Result<Scene> make_scene(const std::string& name, uint64_t seed,
                          const std::filesystem::path& data_dir);
 std::vector<std::string> scene_names();
