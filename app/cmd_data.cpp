@@ -7,6 +7,7 @@
 
 #include <glob.h>
 
+#include "calibrate/depth_to_color.h"
 #include "calibrate/intrinsics.h"
 #include "calibrate/turntable_axis.h"
 #include "capture/capture_devices.h"
@@ -229,6 +230,42 @@ void add_calibrate(CLI::App& app) {
       c.color = r->calibration;
       if (auto st = save_calibration(a->out, c); !st) return error(st.error().message);
       return finish(r->report, a->report.empty() ? fs::path(a->out).parent_path() / "report.json" : fs::path(a->report));
+    });
+  });
+  auto* dc = cal->add_subcommand("depth", "Depth-to-colour extrinsic from a board seen by both cameras");
+  auto dargs = std::make_shared<std::array<std::string, 3>>();  // session, board, out
+  (*dargs)[1] = "chessboard:9x6:0.02";
+  dc->add_option("session", (*dargs)[0], "session with colour and depth frames of a board")->required();
+  dc->add_option("--board", (*dargs)[1], "board spec")->capture_default_str();
+  dc->add_option("--out", (*dargs)[2], "calibration file to write (the extrinsic is added)")->required();
+  dc->callback([dargs] {
+    set_runner([dargs] {
+      auto board = BoardSpec::parse((*dargs)[1]);
+      if (!board) return error(board.error().message);
+      auto s = load_session((*dargs)[0]);
+      if (!s) return error(s.error().message);
+      if (!s->color || !s->depth) return error("the session needs a colour and a depth sensor");
+      Calibration c;
+      if (fs::exists((*dargs)[2]))
+        if (auto old = load_calibration((*dargs)[2])) c = *old;
+      const Intrinsics Kc = c.color ? c.color->intrinsics : s->color->intrinsics;
+      std::vector<DepthColorView> views;
+      for (const auto& f : s->frames) {
+        if (f.color.empty() || f.depth.empty()) continue;
+        auto im = load_color(*s, f);
+        if (!im) return error(im.error().message);
+        auto d = load_depth(*s, f);
+        if (!d) return error(d.error().message);
+        auto det = detect_board(*im, *board);
+        if (!det) return error(det.error().message);
+        views.push_back({std::move(*det), std::move(*d), f.depth});
+      }
+      auto r = calibrate_depth_to_color(views, Kc, s->depth->intrinsics, s->depth->unit_m, s->depth->color_from_depth);
+      if (!r) return error(r.error().message);
+      c.color_from_depth = r->color_from_depth;
+      c.color_from_depth_rms = r->rms_m;
+      if (auto st = save_calibration((*dargs)[2], c); !st) return error(st.error().message);
+      return finish(r->report, fs::path((*dargs)[2]).parent_path() / "report.json");
     });
   });
   auto* ax = cal->add_subcommand("axis", "Turntable axis from board views at known table angles (Ceres)");
