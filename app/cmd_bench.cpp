@@ -4,6 +4,8 @@
 #include <thread>
 
 #include "app/commands.h"
+#include "calibrate/intrinsics.h"
+#include "calibrate/turntable_axis.h"
 #include "capture/pixel_formats.h"
 #include "capture/session.h"
 #include "capture/synth_rig.h"
@@ -142,6 +144,72 @@ int bench_capture(const fs::path& out, int repeats) {
   return finish(rep, out / "report.json");
 }
 
+// Calibration error vs number of views and seconds, on the board rig (known
+// truth). Peer in the same run: the closed-form axis from per-view PnP.
+int bench_calibrate(const fs::path& out) {
+  Stopwatch total;
+  Report rep;
+  rep.stage = "bench.calibrate";
+  const fs::path session = out / "board_session";
+  std::error_code ec;
+  fs::remove_all(session, ec);
+  SynthOptions so;
+  so.scene = "board";
+  so.views = 48;
+  auto synth = synth_session(so, session);
+  if (!synth) return error(synth.error().message);
+  auto truth = load_synth_truth(session);
+  auto s = load_session(session);
+  if (!truth || !s) return error("cannot read the board session back");
+  const BoardSpec board = *BoardSpec::parse("chessboard:9x6:0.02");
+  std::vector<AxisView> visible;
+  for (const auto& f : s->frames) {
+    auto d = detect_board(*load_color(*s, f), board);
+    if (d && d->found) visible.push_back({f.table_angle_commanded_deg, std::move(*d), f.color});
+  }
+  const Eigen::Vector3d d_true = truth->axis_dir_camera;
+  const Eigen::Vector3d p_true = truth->axis_point_camera - d_true * d_true.dot(truth->axis_point_camera);
+  SweepTable t;
+  t.columns = {"views", "fx_error_percent", "intrinsics_rms_px", "intrinsics_seconds", "axis_dir_error_deg",
+               "axis_point_error_mm", "pnp_axis_dir_error_deg", "pnp_axis_point_error_mm", "axis_seconds"};
+  for (size_t n : {3, 4, 6, 8, 12, 16, 100}) {
+    if (n > visible.size()) n = visible.size();
+    std::vector<AxisView> use;
+    for (size_t k = 0; k < n; ++k) use.push_back(visible[k * visible.size() / n]);
+    std::vector<BoardDetection> dets;
+    for (const auto& v : use) dets.push_back(v.detection);
+    IntrinsicsOptions io;
+    io.board = board;
+    io.fix_k3 = true;
+    Stopwatch si;
+    auto in = calibrate_intrinsics(dets, {}, truth->color.width, truth->color.height, io);
+    const double ts = si.seconds();
+    Stopwatch sa;
+    auto ax = calibrate_turntable_axis(use, truth->color);
+    const double ta = sa.seconds();
+    if (!in || !ax) continue;
+    auto ang = [](const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+      return std::acos(std::clamp(a.normalized().dot(b.normalized()), -1.0, 1.0)) * 180 / M_PI;
+    };
+    t.rows.push_back({double(n), 100 * std::abs(in->calibration.intrinsics.fx / truth->color.fx - 1),
+                      in->calibration.rms_px, ts, ang(ax->axis.direction_camera, d_true),
+                      1000 * (ax->axis.point_camera - p_true).norm(), ang(ax->initial_direction, d_true),
+                      1000 * (ax->initial_point - p_true).norm(), ta});
+    std::fprintf(stderr, "%2zu views: fx err %.3f %% (%.3f s); axis %.4f deg / %.3f mm (PnP start %.4f deg / %.3f mm), %.3f s\n",
+                 n, t.rows.back()[1], ts, t.rows.back()[4], t.rows.back()[5], t.rows.back()[6], t.rows.back()[7], ta);
+    if (n == visible.size()) break;
+  }
+  fs::remove_all(session, ec);
+  if (auto st = t.write_csv(out / "calibrate.csv"); !st) return error(st.error().message);
+  PlotSpec spec{"Calibration error vs views (board rig, known truth)", "views", "error", "views",
+                {"fx_error_percent", "axis_dir_error_deg", "pnp_axis_dir_error_deg", "axis_point_error_mm"},
+                false, false, true};
+  if (auto st = plot_png(t, spec, out / "calibrate.png"); !st) rep.warnings.push_back(st.error().message);
+  rep.counts["visible_views"] = double(visible.size());
+  rep.seconds = total.seconds();
+  return finish(rep, out / "report.json");
+}
+
 }  // namespace
 
 void add_bench_commands(CLI::App& app) {
@@ -150,7 +218,7 @@ void add_bench_commands(CLI::App& app) {
   auto out = std::make_shared<std::string>();
   auto repeats = std::make_shared<int>(3);
   auto scene = std::make_shared<std::string>("blob");
-  sub->add_option("stage", *stage, "rig (render time vs image size), capture (per-frame decode + write overhead)")
+  sub->add_option("stage", *stage, "rig (render time vs image size), capture (per-frame decode + write overhead), calibrate (error vs views)")
       ->required();
   sub->add_option("--out", *out, "output folder")->required();
   sub->add_option("--repeats", *repeats, "renders per point (median)")->capture_default_str();
@@ -159,7 +227,8 @@ void add_bench_commands(CLI::App& app) {
     set_runner([=] {
       if (*stage == "rig") return bench_rig(*out, std::max(1, *repeats), *scene);
       if (*stage == "capture") return bench_capture(*out, std::max(5, *repeats * 10));
-      std::fprintf(stderr, "s2r bench %s: not yet available in this build (only 'rig' and 'capture')\n", stage->c_str());
+      if (*stage == "calibrate") return bench_calibrate(*out);
+      std::fprintf(stderr, "s2r bench %s: not yet available in this build (only 'rig', 'capture' and 'calibrate')\n", stage->c_str());
       return 2;
     });
   });

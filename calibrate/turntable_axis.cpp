@@ -121,6 +121,8 @@ Result<AxisResult> calibrate_turntable_axis(const std::vector<AxisView>& views_i
   const Eigen::Vector3d d_init = dsum.normalized();
   double d[3] = {d_init.x(), d_init.y(), d_init.z()};
   const Eigen::Vector3d p_init = axis_point(Rrel, t0s, ts, dsum.normalized());
+  out.initial_direction = d_init;
+  out.initial_point = p_init - d_init * d_init.dot(p_init);
   double p[3] = {p_init.x(), p_init.y(), p_init.z()};
   Eigen::Quaterniond q0(poses[0].linear());
   double q[4] = {q0.x(), q0.y(), q0.z(), q0.w()};

@@ -37,6 +37,8 @@ struct AxisResult {
   std::vector<std::string> used;       // names of the used views
   Eigen::Isometry3d camera_from_board0 = Eigen::Isometry3d::Identity();
   double rms_px = 0;
+  // The closed-form start from per-view PnP (a peer for the refined axis).
+  Eigen::Vector3d initial_direction = Eigen::Vector3d::UnitZ(), initial_point = Eigen::Vector3d::Zero();
   Report report;
 };
 

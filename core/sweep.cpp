@@ -45,7 +45,7 @@ Status plot_png(const SweepTable& t, const PlotSpec& spec, const fs::path& png) 
   if (xc < 0) return fail("plot: no column '" + spec.x + "'");
   // Inline data blocks: one block per line of the plot.
   std::ostringstream script;
-  script << "set terminal pngcairo size 900,560 font 'sans,10'\n";
+  script << "set terminal pngcairo size 900,560 font 'sans,10' noenhanced\n";
   script << "set title '" << spec.title << "'\nset xlabel '" << spec.xlabel << "'\nset ylabel '" << spec.ylabel
          << "'\nset grid\nset key left top\n";
   if (spec.logx) script << "set logscale x\n";
