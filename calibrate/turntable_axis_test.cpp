@@ -239,6 +239,8 @@ TEST(AxisThroughPoses, MiddleburyRingMatchesItsAngles) {
     worst = std::max(worst, std::min(a, b));
   }
   RecordProperty("ring_rms_mm", std::to_string(1000 * fit->rms_m));
+  RecordProperty("angle_3_deg", std::to_string(fit->angles_deg[3]));
+  RecordProperty("ang_txt_3_deg", std::to_string(lon[3] - lon[0]));
   RecordProperty("worst_angle_vs_ang_txt_deg", std::to_string(worst));
   EXPECT_LT(worst, 0.5);
   EXPECT_LT(fit->rms_m, 0.002);
