@@ -205,6 +205,12 @@ int bench_calibrate(const fs::path& out) {
                 {"fx_error_percent", "axis_dir_error_deg", "pnp_axis_dir_error_deg", "axis_point_error_mm"},
                 false, false, true};
   if (auto st = plot_png(t, spec, out / "calibrate.png"); !st) rep.warnings.push_back(st.error().message);
+  PlotSpec time_spec{"Axis error vs seconds (board rig)", "seconds (Ceres axis fit)", "error",
+                     "axis_seconds", {"axis_dir_error_deg", "axis_point_error_mm"}, false, false, true};
+  if (auto st = plot_png(t, time_spec, out / "calibrate_time.png"); !st) rep.warnings.push_back(st.error().message);
+  PlotSpec fx_spec{"Focal length error vs seconds (board rig, turntable views)", "seconds (OpenCV intrinsics)",
+                   "fx error (%)", "intrinsics_seconds", {"fx_error_percent"}, false, false, true};
+  if (auto st = plot_png(t, fx_spec, out / "calibrate_fx_time.png"); !st) rep.warnings.push_back(st.error().message);
   rep.counts["visible_views"] = double(visible.size());
   rep.seconds = total.seconds();
   return finish(rep, out / "report.json");
