@@ -27,10 +27,11 @@ Result<Report> run_capture(CaptureDevices& dev, const CaptureOptions& o, const s
     writer.emplace(std::move(*w));
     rep.skipped["frames_already_captured"] = writer->next_index();
     // Opening the port resets a GRBL board, which forgets its position: the
-    // table stands where the last complete frame left it.
+    // table stands where the last complete frame left it, so declare that
+    // position (G92) rather than move.
     const auto& frames = writer->session().frames;
     const double last = frames.empty() ? 0.0 : frames.back().table_angle_reported_deg;
-    if (auto st = dev.table->move_to(last); !st) return std::unexpected(with_context(st.error(), "resuming"));
+    if (auto st = dev.table->set_position(last); !st) return std::unexpected(with_context(st.error(), "resuming"));
     if (!frames.empty())
       rep.warnings.push_back("resumed after frame " + std::to_string(frames.back().index) +
                              "; the table is assumed to stand at " + std::to_string(last) +

@@ -152,8 +152,10 @@ void GrblSim::handle_line(const std::string& raw) {
     reply(out + "ok\r\n");
     return;
   }
-  if (line.rfind("G92", 0) == 0) {
-    from_ = to_ = 0;
+  if (line.rfind("G92", 0) == 0) {  // declare the current position
+    const size_t xp = line.find('X');
+    const double v = xp == std::string::npos ? 0.0 : std::strtod(line.c_str() + xp + 1, nullptr);
+    from_ = to_ = std::isfinite(v) ? v : 0.0;
     move_end_ = move_start_ = 0;
     reply(out + "ok\r\n");
     return;

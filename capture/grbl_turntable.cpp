@@ -165,8 +165,13 @@ Result<GrblStatus> GrblTurntable::status() {
 
 Status GrblTurntable::home() {
   // DIY turntables rarely have a homing switch: the current position becomes 0.
-  if (auto st = command("G92 " + opt_.axis + "0"); !st) return st;
-  return {};
+  return set_position(0);
+}
+
+Status GrblTurntable::set_position(double degrees) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "G92 %s%.4f", opt_.axis.c_str(), degrees);
+  return command(buf);
 }
 
 Status GrblTurntable::move_to(double degrees) {

@@ -51,6 +51,7 @@ class GrblTurntable : public Turntable {
  public:
   static Result<std::unique_ptr<GrblTurntable>> open(const std::string& port, const GrblOptions& options = {});
   Status home() override;
+  Status set_position(double degrees) override;  // G92
   Status move_to(double degrees) override;
   Result<double> position() override;
   std::string describe() const override { return "grbl:" + port_.path() + " (" + banner_ + ")"; }

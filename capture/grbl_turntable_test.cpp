@@ -64,6 +64,14 @@ TEST(GrblTurntable, HomesMovesAndReportsPosition) {
   }
 }
 
+TEST(GrblTurntable, SetPositionDeclaresWithoutMoving) {
+  auto r = connect({});
+  ASSERT_TRUE(r.table->set_position(120));
+  EXPECT_NEAR(*r.table->position(), 120, 1e-3);
+  ASSERT_TRUE(r.table->move_to(135));
+  EXPECT_NEAR(r.sim->position(), 135, 1e-3);
+}
+
 TEST(GrblTurntable, SoftResetWhenNoBanner) {
   GrblFaults f;
   f.no_banner = true;
