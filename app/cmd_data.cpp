@@ -187,6 +187,13 @@ std::vector<fs::path> expand_glob(const std::string& pattern) {
   return out;
 }
 
+// Each calibrate command adds its part to the file and keeps the others.
+Calibration existing_calibration(const std::string& path) {
+  if (fs::exists(path))
+    if (auto old = load_calibration(path)) return *old;
+  return {};
+}
+
 void add_calibrate(CLI::App& app) {
   auto* cal = app.add_subcommand("calibrate", "Camera intrinsics, depth-to-colour, turntable axis");
   cal->require_subcommand(1);
@@ -224,9 +231,7 @@ void add_calibrate(CLI::App& app) {
                   r->stddev[1], K.cx, r->stddev[2], K.cy, r->stddev[3]);
       std::printf("dist %.5f %.5f %.5f %.5f %.5f   RMS %.4f px over %d views\n", K.dist[0], K.dist[1], K.dist[2],
                   K.dist[3], K.dist[4], r->calibration.rms_px, r->calibration.views);
-      Calibration c;
-      if (fs::exists(a->out))
-        if (auto old = load_calibration(a->out)) c = *old;  // keep the other parts of an existing file
+      Calibration c = existing_calibration(a->out);
       c.color = r->calibration;
       if (auto st = save_calibration(a->out, c); !st) return error(st.error().message);
       return finish(r->report, a->report.empty() ? fs::path(a->out).parent_path() / "report.json" : fs::path(a->report));
@@ -245,9 +250,7 @@ void add_calibrate(CLI::App& app) {
       auto s = load_session((*dargs)[0]);
       if (!s) return error(s.error().message);
       if (!s->color || !s->depth) return error("the session needs a colour and a depth sensor");
-      Calibration c;
-      if (fs::exists((*dargs)[2]))
-        if (auto old = load_calibration((*dargs)[2])) c = *old;
+      Calibration c = existing_calibration((*dargs)[2]);
       const Intrinsics Kc = c.color ? c.color->intrinsics : s->color->intrinsics;
       std::vector<DepthColorView> views;
       for (const auto& f : s->frames) {
@@ -284,9 +287,7 @@ void add_calibrate(CLI::App& app) {
       if (!board) return error(board.error().message);
       auto s = load_session(b->session);
       if (!s) return error(s.error().message);
-      Calibration c;
-      if (fs::exists(b->out))
-        if (auto old = load_calibration(b->out)) c = *old;
+      Calibration c = existing_calibration(b->out);
       std::optional<Intrinsics> K;
       if (!b->intrinsics.empty()) {
         auto ic = load_calibration(b->intrinsics);
