@@ -11,6 +11,16 @@
 
 namespace s2r {
 
+namespace {
+v4l2_buffer mmap_buffer(uint32_t index) {
+  v4l2_buffer b{};
+  b.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
+  b.memory = V4L2_MEMORY_MMAP;
+  b.index = index;
+  return b;
+}
+}  // namespace
+
 Status V4l2Camera::fail_errno(const std::string& what, int err) const {
   std::string msg = path_ + ": " + what + " failed: " + std::strerror(err);
   if (err == ENODEV || err == EIO || err == ENXIO) msg = path_ + ": camera disconnected during " + what;
@@ -108,10 +118,7 @@ Status V4l2Camera::start() {
   if (int r = io_->ioctl(VIDIOC_REQBUFS, &req); r < 0) return fail_errno("REQBUFS", -r);
   if (req.count < 2) return fail(path_ + ": device granted " + std::to_string(req.count) + " buffer(s); 2 are needed");
   for (uint32_t i = 0; i < req.count; ++i) {
-    v4l2_buffer b{};
-    b.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
-    b.memory = V4L2_MEMORY_MMAP;
-    b.index = i;
+    v4l2_buffer b = mmap_buffer(i);
     if (int r = io_->ioctl(VIDIOC_QUERYBUF, &b); r < 0) {
       stop();
       return fail_errno("QUERYBUF", -r);
@@ -123,11 +130,8 @@ Status V4l2Camera::start() {
     }
     buffers_.push_back({p, b.length});
   }
-  for (uint32_t i = 0; i < buffers_.size(); ++i) {
-    v4l2_buffer b{};
-    b.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
-    b.memory = V4L2_MEMORY_MMAP;
-    b.index = i;
+  for (uint32_t i = 0; i < static_cast<uint32_t>(buffers_.size()); ++i) {
+    v4l2_buffer b = mmap_buffer(i);
     if (int r = io_->ioctl(VIDIOC_QBUF, &b); r < 0) {
       stop();
       return fail_errno("QBUF", -r);
@@ -167,9 +171,7 @@ Result<CapturedFrame> V4l2Camera::grab() {
     if (pr == -EINTR) continue;
     if (pr < 0) return std::unexpected(fail_errno("poll", -pr).error());
     if (pr == 0) return fail(path_ + ": timed out after " + std::to_string(cfg_.timeout_ms) + " ms waiting for a frame");
-    v4l2_buffer b{};
-    b.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
-    b.memory = V4L2_MEMORY_MMAP;
+    v4l2_buffer b = mmap_buffer(0);
     const int r = io_->ioctl(VIDIOC_DQBUF, &b);
     if (r == -EAGAIN || r == -EINTR) {
       if (++eagain > cfg_.max_eagain)
