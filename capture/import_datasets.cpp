@@ -6,6 +6,7 @@
 #include <sstream>
 
 #include "capture/session.h"
+#include "capture/stanford_conf.h"
 #include "core/image_io.h"
 #include "core/mesh.h"
 #include "core/progress.h"
@@ -56,32 +57,11 @@ struct Importer {
 };
 
 // --- Stanford .conf -------------------------------------------------------------
-Result<Report> stanford(const fs::path& conf, const fs::path& out, const ImportOptions& o) {
-  std::ifstream in(conf);
-  if (!in) return fail("'" + conf.string() + "': cannot open .conf");
-  struct Entry { std::string file; Eigen::Isometry3d pose; };
-  std::vector<Entry> entries;
-  std::string line;
-  int lineno = 0;
-  while (std::getline(in, line)) {
-    ++lineno;
-    std::istringstream ls(line);
-    std::string kind;
-    if (!(ls >> kind) || kind != "bmesh") continue;
-    Entry e;
-    double t[3], q[4];
-    if (!(ls >> e.file >> t[0] >> t[1] >> t[2] >> q[0] >> q[1] >> q[2] >> q[3]))
-      return fail(conf.string() + ": line " + std::to_string(lineno) +
-                  ": expected 'bmesh FILE tx ty tz qx qy qz qw'");
-    Eigen::Quaterniond quat(q[3], q[0], q[1], q[2]);
-    if (!(quat.norm() > 0.5 && quat.norm() < 2))
-      return fail(conf.string() + ": line " + std::to_string(lineno) + ": quaternion is not unit length");
-    e.pose = Eigen::Isometry3d::Identity();
-    e.pose.linear() = quat.normalized().toRotationMatrix();
-    e.pose.translation() = Eigen::Vector3d(t[0], t[1], t[2]);
-    entries.push_back(e);
-  }
-  if (entries.empty()) return fail(conf.string() + ": no 'bmesh' lines");
+Result<Report> stanford(const fs::path& conf_path, const fs::path& out, const ImportOptions& o) {
+  auto conf = read_stanford_conf(conf_path);
+  if (!conf) return std::unexpected(conf.error());
+  const fs::path conf_dir = conf_path.parent_path();
+  const auto& entries = conf->scans;
   Importer im;
   im.header.layout = Layout::kObjectCentre;
   im.header.notes.push_back("Stanford range scans; world_from_camera is the .conf pose "
@@ -92,13 +72,13 @@ Result<Report> stanford(const fs::path& conf, const fs::path& out, const ImportO
   size_t points = 0;
   for (size_t i = 0; i < entries.size(); ++i, progress.tick()) {
     if (!take(static_cast<int>(i), o, taken)) continue;
-    auto scan = read_ply_points(conf.parent_path() / entries[i].file);
+    auto scan = read_ply_points(conf_dir / entries[i].file);
     if (!scan) return std::unexpected(scan.error());
     Frame f;
     f.index = taken;
     f.points = "points/" + frame_file_name(taken, "ply");
     f.source = entries[i].file;
-    f.world_from_camera = entries[i].pose;
+    f.world_from_camera = entries[i].world_from_scan;
     if (auto st = write_ply_points(out / f.points, *scan); !st) return std::unexpected(st.error());
     if (auto st = im.writer->add_frame(f, nullptr, nullptr); !st) return std::unexpected(st.error());
     points += scan->points.size();
