@@ -112,6 +112,45 @@ Scene blob() {
   return s;
 }
 
+// A vase: a closed surface of revolution about the table axis (z), so its
+// depth is the same at every table angle: registration from geometry alone
+// cannot tell the angle (the symmetric stiff case). Textured, so colour can.
+Scene vase() {
+  constexpr int kRings = 96, kSegments = 256;
+  constexpr float kHeight = 0.16f;
+  auto radius = [](float z) {  // metres; a belly, a neck and a lip
+    const float u = z / kHeight;
+    return 0.035f + 0.02f * std::sin(std::numbers::pi_v<float> * u * 1.2f) - 0.012f * u * u + 0.004f * u * u * u * u;
+  };
+  Mesh m;
+  m.vertices.emplace_back(0.f, 0.f, 0.f);  // bottom centre
+  for (int i = 0; i <= kRings; ++i) {
+    const float z = kHeight * float(i) / float(kRings);
+    for (int j = 0; j < kSegments; ++j) {
+      const float ph = 2 * std::numbers::pi_v<float> * float(j) / float(kSegments);
+      m.vertices.emplace_back(radius(z) * std::cos(ph), radius(z) * std::sin(ph), z);
+    }
+  }
+  m.vertices.emplace_back(0.f, 0.f, kHeight);  // top centre
+  const int top = static_cast<int>(m.vertices.size()) - 1;
+  auto at = [](int i, int j) { return 1 + i * kSegments + (j % kSegments); };
+  for (int j = 0; j < kSegments; ++j) {
+    m.faces.emplace_back(0, at(0, j + 1), at(0, j));
+    for (int i = 0; i < kRings; ++i) {
+      m.faces.emplace_back(at(i, j), at(i, j + 1), at(i + 1, j + 1));
+      m.faces.emplace_back(at(i, j), at(i + 1, j + 1), at(i + 1, j));
+    }
+    m.faces.emplace_back(top, at(kRings, j), at(kRings, j + 1));
+  }
+  m.compute_vertex_normals();
+  Scene s;
+  s.name = "vase";
+  s.surfaces.push_back({std::move(m), Texture::kPatches});
+  s.table_from_camera = look_at({0, -0.36, 0.24}, {0, 0, 0.08}, 1.5);
+  s.light_dir_lab = Vector3d(-0.3, -0.8, 0.6).normalized();
+  return s;
+}
+
 Scene fuzzy(uint64_t seed) {
   Scene s;
   s.name = "fuzzy";
@@ -210,13 +249,16 @@ Scene board() {
 
 }  // namespace
 
-std::vector<std::string> scene_names() { return {"bunny", "fuzzy", "room", "blob", "board", "board_wobble"}; }
+std::vector<std::string> scene_names() {
+  return {"bunny", "fuzzy", "room", "blob", "vase", "board", "board_wobble"};
+}
 
 Result<Scene> make_scene(const std::string& name, uint64_t seed, const fs::path& data_dir) {
   if (name == "bunny") return bunny(data_dir);
   if (name == "fuzzy") return fuzzy(seed);
   if (name == "room") return room();
   if (name == "blob") return blob();
+  if (name == "vase") return vase();
   if (name == "board") return board();
   if (name == "board_wobble") {
     Scene s = board();
@@ -227,7 +269,7 @@ Result<Scene> make_scene(const std::string& name, uint64_t seed, const fs::path&
     s.table_from_camera = look_at({0, -0.30, 0.22}, {0, 0, 0.10}, 1.5);
     return s;
   }
-  return fail("unknown scene '" + name + "' (choose bunny, fuzzy, room, blob, board or board_wobble)");
+  return fail("unknown scene '" + name + "' (choose bunny, fuzzy, room, blob, vase, board or board_wobble)");
 }
 
 }  // namespace s2r::synth

@@ -55,7 +55,8 @@ struct Scene {
 
 // Names: "bunny" (textured Stanford bunny), "fuzzy" (core + thousands of thin
 // strands), "room" (camera in the middle of a furnished room), "blob" (a
-// closed textured object needing no external data), "board" (a printed
+// closed textured object needing no external data), "vase" (a textured surface
+// of revolution about the table axis: the symmetric case), "board" (a printed
 // chessboard standing on the table, 9x6 inner corners of 20 mm, for calibration),
 // "board_wobble" (the same board seen from views that also vary in elevation and
 // roll: intrinsics data, not a turntable).

@@ -31,4 +31,22 @@ ColoredPoints depth_to_points(const ImageU16& depth, double unit_m, const Intrin
   return out;
 }
 
+PointScan depth_to_scan(const ImageU16& depth, double unit_m, const Intrinsics& depth_K,
+                        const Eigen::Isometry3d& color_from_depth) {
+  PointScan scan;
+  scan.grid_width = depth.width;
+  scan.grid_height = depth.height;
+  scan.grid_index.assign(static_cast<size_t>(depth.width) * depth.height, -1);
+  for (int y = 0; y < depth.height; ++y)
+    for (int x = 0; x < depth.width; ++x) {
+      const uint16_t d = depth.at(x, y);
+      if (d == 0) continue;
+      auto p = depth_K.unproject({double(x), double(y)}, d * unit_m);
+      if (!p || !p->allFinite()) continue;
+      scan.grid_index[static_cast<size_t>(y) * depth.width + x] = static_cast<int32_t>(scan.points.size());
+      scan.points.push_back((color_from_depth * *p).cast<float>());
+    }
+  return scan;
+}
+
 }  // namespace s2r

@@ -10,6 +10,7 @@
 
 #include "core/camera_model.h"
 #include "core/image.h"
+#include "core/mesh.h"
 
 namespace s2r {
 
@@ -24,5 +25,10 @@ struct ColoredPoints {
 ColoredPoints depth_to_points(const ImageU16& depth, double unit_m, const Intrinsics& depth_K,
                               const Eigen::Isometry3d& color_from_depth, const ImageU8* color,
                               const Intrinsics* color_K, int stride = 1);
+
+// The depth image as a range grid (one cell per depth pixel, -1 where there
+// is no measurement), points in the colour camera's frame.
+PointScan depth_to_scan(const ImageU16& depth, double unit_m, const Intrinsics& depth_K,
+                        const Eigen::Isometry3d& color_from_depth);
 
 }  // namespace s2r

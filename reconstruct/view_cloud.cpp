@@ -180,10 +180,12 @@ NeighbourIndex& NeighbourIndex::operator=(NeighbourIndex&&) noexcept = default;
 
 int NeighbourIndex::nearest(const Eigen::Vector3f& q, float max_dist, float* dist2) const {
   if (impl_->empty) return -1;
-  pcl::Indices idx(1);
-  std::vector<float> d2(1);
+  // A radius search with one neighbour: the nearest within reach, and a query
+  // far from every point is cut short instead of searching the whole tree.
+  pcl::Indices idx;
+  std::vector<float> d2;
   pcl::PointXYZ p(q.x(), q.y(), q.z());
-  if (impl_->tree.nearestKSearch(p, 1, idx, d2) < 1 || d2[0] > max_dist * max_dist) return -1;
+  if (impl_->tree.radiusSearch(p, max_dist, idx, d2, 1) < 1) return -1;
   if (dist2) *dist2 = d2[0];
   return idx[0];
 }
