@@ -281,7 +281,7 @@ Status run_levels(Run& run, PoseState& st) {
   for (size_t level = 0; level < run.voxels.size(); ++level) {
     const double voxel = run.voxels[level];
     const float reach = static_cast<float>(run.o.reach_voxels * voxel);
-    const double sigma = 0.5 * voxel;  // Huber scale: residuals beyond it count linearly
+    const double sigma = 0.25 * voxel;  // Huber scale: residuals beyond it count linearly
     std::vector<LevelView> lv(static_cast<size_t>(n));
     parallel_for(n, threads, [&](int i) {
       LevelView& v = lv[static_cast<size_t>(i)];
@@ -552,7 +552,7 @@ SlideAnalysis analyse_slide(Run& run, const RegistrationResult& res) {
 
 std::vector<double> voxel_schedule(const RegistrationOptions& o, const Extent& e) {
   if (!o.voxel_m.empty()) return o.voxel_m;
-  const double base = std::max(2 * e.radius / 400, 1e-5);
+  const double base = std::max(2 * e.radius / 500, 1e-5);
   return {8 * base, 4 * base, 2 * base, base};
 }
 

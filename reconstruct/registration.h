@@ -62,7 +62,7 @@ struct RegistrationRound {
 struct RegistrationOptions {
   RegistrationMode mode = RegistrationMode::kFree;
   std::optional<TurntablePrior> turntable;  // required for kTurntable; the axis for the 180-deg test
-  // Coarse-to-fine voxel sizes; empty: 8, 4, 2, 1 times extent/400 (the
+  // Coarse-to-fine voxel sizes; empty: 8, 4, 2, 1 times extent/500 (the
   // bounding box's diagonal at the initial poses).
   std::vector<double> voxel_m;
   double reach_voxels = 4;         // correspondence distance, in voxels of the level
