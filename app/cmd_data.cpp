@@ -374,8 +374,6 @@ void add_data_commands(CLI::App& app) {
   add_devices(app);
   add_capture(app);
   add_calibrate(app);
-  add_not_yet(app, "register", "Register all views at once");
-  add_not_yet(app, "reconstruct", "Fusion, microfacets, octree, per-camera depth");
 }
 
 }  // namespace s2r::cli

@@ -16,7 +16,8 @@ namespace s2r::cli {
 using Runner = std::function<int()>;
 void set_runner(Runner r);
 
-void add_data_commands(CLI::App& app);    // synth, import, devices, capture, calibrate, register, reconstruct
+void add_data_commands(CLI::App& app);    // synth, import, devices, capture, calibrate
+void add_reconstruct_commands(CLI::App& app);  // register, reconstruct
 void add_render_commands(CLI::App& app);  // preview, render, eval, view, raytrace, envmap
 void add_bench_commands(CLI::App& app);   // bench
 

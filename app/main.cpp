@@ -50,6 +50,7 @@ int main(int argc, char** argv) {
   bool quiet = false;
   app.add_flag("-q,--quiet", quiet, "no progress bars");
   add_data_commands(app);
+  add_reconstruct_commands(app);
   add_render_commands(app);
   add_bench_commands(app);
   try {

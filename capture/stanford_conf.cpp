@@ -59,7 +59,8 @@ Status write_stanford_conf(const fs::path& path, const StanfordConf& conf) {
     const auto& s = conf.scans.at(static_cast<size_t>(l.scan));
     Eigen::Quaterniond q = conf_quaternion(s.world_from_scan.rotation());
     if (q.coeffs().dot(s.as_read.coeffs()) < 0) q.coeffs() = -q.coeffs();
-    const Eigen::Vector3d t = s.world_from_scan.translation();
+    const Eigen::Vector3d t = s.world_from_scan.translation() + Eigen::Vector3d::Zero();
+    q.coeffs() += Eigen::Vector4d::Zero();  // -0 prints as 0
     char buf[512];
     std::snprintf(buf, sizeof buf, "bmesh %s %.9g %.9g %.9g %.9g %.9g %.9g %.9g\n", s.file.c_str(), t.x(),
                   t.y(), t.z(), q.x(), q.y(), q.z(), q.w());

@@ -39,12 +39,6 @@ struct LevelView {
 };
 
 
-double median_of(std::vector<double> v) {
-  if (v.empty()) return 0;
-  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
-  return v[v.size() / 2];
-}
-
 double rotation_deg(const Eigen::Matrix3d& r) { return Eigen::AngleAxisd(r).angle() / kDeg; }
 
 // The poses being optimised, in either parameterisation.
@@ -192,6 +186,9 @@ struct Run {
   ceres::EigenQuaternionManifold quat_manifold;
   std::unique_ptr<ceres::Problem> last_problem;
   std::vector<double*> variable_blocks;  // free mode: q, t per variable view, in order
+  std::vector<ceres::ResidualBlockId> data_blocks;  // turntable mode: the point-to-plane residuals
+  std::vector<int> theta_views;                     // turntable mode: views with a free angle block
+  std::vector<double> theta_sensitivity;            // per view, last measured (-1 = not measured)
 };
 
 bool is_variable(const RegistrationOptions& o, int i, int n) {
@@ -208,6 +205,7 @@ std::unique_ptr<ceres::Problem> build_problem(Run& run, PoseState& st, const std
   po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   po.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   auto problem = std::make_unique<ceres::Problem>(po);
+  run.data_blocks.clear();
   const int n = static_cast<int>(run.views.size());
   const double inv_sigma = 1.0 / sigma;
   const bool free = st.mode_ == RegistrationMode::kFree;
@@ -227,12 +225,14 @@ std::unique_ptr<ceres::Problem> build_problem(Run& run, PoseState& st, const std
         const auto& pb = st.initial_[pd.b];
         auto* cost = new ceres::AutoDiffCostFunction<reg::TurntablePointToPlane, 1, 1, 2, 3, 1, 2, 3>(
             new reg::TurntablePointToPlane{st.frame_, pa * c.p_a, pb * c.q_b, pb.linear() * c.n_b, inv_sigma});
-        problem->AddResidualBlock(cost, loss, &st.theta_[pd.a], st.tilt_[pd.a].data(), st.shift_[pd.a].data(),
-                                  &st.theta_[pd.b], st.tilt_[pd.b].data(), st.shift_[pd.b].data());
+        run.data_blocks.push_back(problem->AddResidualBlock(cost, loss, &st.theta_[pd.a], st.tilt_[pd.a].data(),
+                                                            st.shift_[pd.a].data(), &st.theta_[pd.b],
+                                                            st.tilt_[pd.b].data(), st.shift_[pd.b].data()));
       }
     }
   }
   run.variable_blocks.clear();
+  run.theta_views.clear();
   for (int i = 0; i < n; ++i) {
     if (!used[static_cast<size_t>(i)]) continue;
     const bool var = is_variable(run.o, i, n);
@@ -253,6 +253,7 @@ std::unique_ptr<ceres::Problem> build_problem(Run& run, PoseState& st, const std
         problem->SetParameterBlockConstant(st.shift_[i].data());
         continue;
       }
+      run.theta_views.push_back(i);
       problem->AddResidualBlock(new ceres::AutoDiffCostFunction<reg::CorrectionPrior<1>, 1, 1>(
                                     new reg::CorrectionPrior<1>{1.0 / (tt.sigma_angle_deg * kDeg)}),
                                 nullptr, &st.theta_[i]);
@@ -265,6 +266,35 @@ std::unique_ptr<ceres::Problem> build_problem(Run& run, PoseState& st, const std
     }
   }
   return problem;
+}
+
+// Turntable mode: how strongly the data fix each view's angle about the axis
+// (the RMS change of its residuals per metre of turn at the object's radius).
+// Where they cannot (a symmetric object), the angle is held at the table's:
+// the noise would otherwise pull it, thousands of residuals outweighing the
+// table's prior.
+void hold_undetermined_angles(Run& run, PoseState& st, ceres::Problem& problem, double sigma) {
+  if (run.theta_views.empty() || run.data_blocks.empty()) return;
+  ceres::Problem::EvaluateOptions eo;
+  eo.residual_blocks = run.data_blocks;
+  for (int v : run.theta_views) eo.parameter_blocks.push_back(&st.theta_[v]);
+  eo.num_threads = worker_count(run.o.threads);
+  ceres::CRSMatrix crs;
+  double cost = 0;
+  if (!problem.Evaluate(eo, &cost, nullptr, nullptr, &crs)) return;
+  std::vector<double> sum2(run.theta_views.size(), 0);
+  std::vector<int> rows(run.theta_views.size(), 0);
+  for (int r = 0; r < crs.num_rows; ++r)
+    for (int k = crs.rows[r]; k < crs.rows[r + 1]; ++k) sum2[crs.cols[k]] += crs.values[k] * crs.values[k], ++rows[crs.cols[k]];
+  const double radius = std::max(run.extent.radius, 1e-6);
+  run.theta_sensitivity.assign(run.views.size(), -1);
+  for (size_t k = 0; k < run.theta_views.size(); ++k) {
+    if (rows[k] == 0) continue;
+    const double s = std::sqrt(sum2[k] / rows[k]) * sigma / radius;  // d(residual m) / d(turn m at the radius)
+    const int v = run.theta_views[k];
+    run.theta_sensitivity[static_cast<size_t>(v)] = s;
+    if (s < run.o.hold_angle_sensitivity) problem.SetParameterBlockConstant(&st.theta_[v]);
+  }
 }
 
 // Coarse-to-fine rounds of (find correspondences, solve) from the current state.
@@ -325,6 +355,7 @@ Status run_levels(Run& run, PoseState& st) {
       }
       if (pairs.empty()) break;
       auto problem = build_problem(run, st, pairs, sigma, &run.loss, &run.quat_manifold);
+      if (st.mode_ == RegistrationMode::kTurntable) hold_undetermined_angles(run, st, *problem, sigma);
       ceres::Solver::Options so;
       so.max_num_iterations = run.o.max_solver_iterations;
       so.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
@@ -422,6 +453,14 @@ void summarise(Run& run, const PoseState& st, RegistrationResult& res) {
     size_t hits = 0;
     for (auto x : m) hits += x;
     v.overlap = m.empty() ? 0 : double(hits) / m.size();
+  }
+  for (size_t i = 0; i < run.theta_sensitivity.size() && i < res.views.size(); ++i) {
+    const double s = run.theta_sensitivity[i];
+    res.views[i].angle_sensitivity = s;
+    if (s >= 0 && s < run.o.hold_angle_sensitivity) {
+      res.views[i].angle_held = true;
+      res.views[i].note = fmt::format("angle held at the table's: the data cannot fix it (sensitivity {:.3f})", s);
+    }
   }
   // A pair fits implausibly when its RMS is far above that of the better
   // pairs (the lower quartile: a wrong view spoils several pairs, which must
@@ -624,15 +663,9 @@ Result<RegistrationResult> register_views(const std::vector<RegistrationView>& v
     const auto [dir, point] = flip_axis(views, o, e);
     std::vector<int> flipped;
     std::vector<Eigen::Isometry3d> start = res->poses;
-    // Suspects: flagged views, and views fitting clearly worse than the median.
-    std::vector<double> rms, overlap;
-    for (const auto& v : res->views)
-      if (v.pairs > 0) rms.push_back(v.rms_m), overlap.push_back(v.overlap);
-    const double median_rms = median_of(rms), median_overlap = median_of(overlap);
     for (int i = 0; i < n; ++i) {
       const ViewStats& vs = res->views[static_cast<size_t>(i)];
-      const bool suspect = vs.flagged || vs.rms_m > 1.25 * median_rms || vs.overlap < 0.6 * median_overlap;
-      if (!suspect || !is_variable(o, i, n)) continue;
+      if (!vs.flagged || !is_variable(o, i, n)) continue;
       RegistrationOptions one = o;
       one.variable_views = {i};
       one.try_flip = false;
@@ -695,13 +728,16 @@ PoseError pose_error(const std::vector<Eigen::Isometry3d>& est, const std::vecto
 }
 
 void add_to_report(const RegistrationResult& r, const std::vector<RegistrationView>& views, Report& report) {
+  // Per view and per pair figures go to tables (views.csv, pairs.csv); the
+  // report keeps the totals and the worst.
   report.errors["rms_point_to_plane_m"] = r.rms_m;
   report.counts["views"] = double(r.poses.size());
   report.counts["pairs"] = double(r.pairs.size());
   report.counts["iterations"] = r.iterations;
   report.counts["rounds"] = r.rounds;
-  int flagged = 0, flipped = 0;
-  for (const auto& v : r.views) flagged += v.flagged, flipped += v.flipped;
+  int flagged = 0, flipped = 0, held = 0;
+  for (const auto& v : r.views) flagged += v.flagged, flipped += v.flipped, held += v.angle_held;
+  if (held) report.skipped["view_angles_held_at_table_angle"] = held;
   report.counts["flagged_views"] = flagged;
   report.counts["flipped_views"] = flipped;
   report.params["voxel_schedule_m"] = [&] {
@@ -709,17 +745,13 @@ void add_to_report(const RegistrationResult& r, const std::vector<RegistrationVi
     for (double v : r.voxel_m) s += (s.empty() ? "" : ", ") + fmt::format("{:.5f}", v);
     return s;
   }();
-  for (size_t i = 0; i < r.views.size(); ++i) {
-    const auto& v = r.views[i];
-    const std::string key = "view_" + std::to_string(i) + (i < views.size() ? "_" + views[i].name : "");
-    report.errors[key + "_rms_m"] = v.rms_m;
-    report.counts[key + "_overlap"] = v.overlap;
-  }
-  for (const auto& p : r.pairs) {
-    const std::string key = fmt::format("pair_{}_{}", p.a, p.b);
-    report.errors[key + "_rms_m"] = p.rms_m;
-    report.counts[key + "_overlap"] = p.overlap;
-  }
+  double worst_pair = 0, least_overlap = 1, worst_view = 0;
+  for (const auto& p : r.pairs) worst_pair = std::max(worst_pair, p.rms_m), least_overlap = std::min(least_overlap, p.overlap);
+  for (const auto& v : r.views) worst_view = std::max(worst_view, v.rms_m);
+  report.errors["worst_pair_rms_m"] = worst_pair;
+  report.errors["worst_view_rms_m"] = worst_view;
+  report.counts["least_pair_overlap"] = r.pairs.empty() ? 0 : least_overlap;
+  (void)views;
   if (r.slide.computed) {
     report.errors["slide_sensitivity"] = r.slide.sensitivity;
     report.errors["slide_sigma_deg"] = r.slide.sigma_deg;

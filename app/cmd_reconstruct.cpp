@@ -1,0 +1,101 @@
+// Subcommands of the reconstruct stage: register (and reconstruct, to come).
+#include <cstdio>
+#include <sstream>
+
+#include "app/commands.h"
+#include "reconstruct/register_job.h"
+
+namespace s2r::cli {
+namespace fs = std::filesystem;
+
+namespace {
+
+// "5,0.005" -> (5, 0.005)
+std::optional<std::pair<double, double>> parse_pair(const std::string& s) {
+  std::istringstream in(s);
+  double a = 0, b = 0;
+  char comma = 0;
+  if (!(in >> a >> comma >> b) || comma != ',' || !in.eof() || !std::isfinite(a) || !std::isfinite(b) || a < 0 ||
+      b < 0)
+    return std::nullopt;
+  return std::make_pair(a, b);
+}
+
+void add_register(CLI::App& app) {
+  auto* sub = app.add_subcommand(
+      "register",
+      "Register all views at once (Ceres): point-to-plane between every overlapping pair, coarse to fine.\n"
+      "Input: a session (depth or scanner points; initial poses from --calibration's turntable axis and\n"
+      "the table angles, or the session's given poses) or Stanford range scans (--stanford CONF).\n"
+      "Writes OUT/poses.json, OUT/report.json, OUT/convergence.csv/png and, for --stanford, OUT/<CONF>\n"
+      "in the input's own conventions.");
+  struct Args {
+    std::string session, stanford, calibration, out, mode = "free", perturb, fixed, voxels;
+    uint64_t seed = 1;
+    int threads = 0;
+    bool no_flip = false;
+    double sigma_angle = 0.2;
+  };
+  auto a = std::make_shared<Args>();
+  sub->add_option("session", a->session, "capture session folder");
+  sub->add_option("--stanford", a->stanford, "Stanford .conf with its range scans beside it");
+  sub->add_option("--calibration", a->calibration, "calibration file (turntable axis, intrinsics)");
+  sub->add_option("--out", a->out, "output folder")->required();
+  sub->add_option("--mode", a->mode,
+                  "free (every pose free; slides reported) or turntable (rotation about the calibrated axis by the "
+                  "table angle plus a small correction)")
+      ->check(CLI::IsMember({"free", "turntable"}))
+      ->capture_default_str();
+  sub->add_option("--perturb", a->perturb, "DEG,M: start from the input poses turned by DEG and shifted by M metres");
+  sub->add_option("--seed", a->seed, "random seed of --perturb")->capture_default_str();
+  sub->add_option("--fixed", a->fixed, "name of the view held fixed (default: the first)");
+  sub->add_option("--voxels", a->voxels, "coarse-to-fine voxel sizes in metres, e.g. 0.004,0.002,0.001 (default: from the extent)");
+  sub->add_option("--table-sigma-deg", a->sigma_angle, "turntable mode: table angle repeatability")->capture_default_str();
+  sub->add_option("--threads", a->threads, "worker threads (0 = all cores)")->capture_default_str();
+  sub->add_flag("--no-flip", a->no_flip, "do not try flagged views turned by 180 deg");
+  sub->callback([a] {
+    set_runner([a] {
+      RegisterJob job;
+      job.session = a->session;
+      job.stanford_conf = a->stanford;
+      job.calibration = a->calibration;
+      job.out = a->out;
+      job.seed = a->seed;
+      job.fixed_name = a->fixed;
+      job.options.mode = a->mode == "turntable" ? RegistrationMode::kTurntable : RegistrationMode::kFree;
+      job.options.threads = a->threads;
+      job.options.try_flip = !a->no_flip;
+      if (!(a->sigma_angle > 0)) return error("--table-sigma-deg must be positive");
+      job.table_sigma_deg = a->sigma_angle;
+      if (!a->perturb.empty()) {
+        auto p = parse_pair(a->perturb);
+        if (!p) return error("--perturb expects DEG,M with two non-negative numbers, e.g. 5,0.005");
+        job.perturb_deg = p->first;
+        job.perturb_m = p->second;
+      }
+      if (!a->voxels.empty()) {
+        std::istringstream in(a->voxels);
+        std::string item;
+        while (std::getline(in, item, ',')) {
+          char* end = nullptr;
+          const double v = std::strtod(item.c_str(), &end);
+          if (end == item.c_str() || *end != '\0' || !(v > 0) || !std::isfinite(v))
+            return error("--voxels: '" + item + "' is not a positive length in metres");
+          job.options.voxel_m.push_back(v);
+        }
+      }
+      auto r = run_register_job(job);
+      if (!r) return error(r.error().message);
+      return finish(*r, fs::path(a->out) / "report.json");
+    });
+  });
+}
+
+}  // namespace
+
+void add_reconstruct_commands(CLI::App& app) {
+  add_register(app);
+  add_not_yet(app, "reconstruct", "Fusion, microfacets, octree, per-camera depth");
+}
+
+}  // namespace s2r::cli
