@@ -10,7 +10,10 @@
 #include "capture/session.h"
 #include "capture/synth_rig.h"
 #include "core/image_io.h"
+#include "core/paths.h"
 #include "core/sweep.h"
+#include "reconstruct/icp_peer.h"
+#include "reconstruct/registration_input.h"
 
 namespace s2r::cli {
 namespace fs = std::filesystem;
@@ -216,6 +219,95 @@ int bench_calibrate(const fs::path& out) {
   return finish(rep, out / "report.json");
 }
 
+// Registration error against run time on the real Stanford ring scans from
+// poses perturbed by 5 deg / 5 mm: ours (one Ceres problem over all views,
+// each coarse-to-fine round a point) against PCL's point-to-plane ICP chained
+// view to view (each iteration cap a point), in the same run.
+int bench_register(const fs::path& out, int seeds) {
+  Stopwatch total;
+  Report rep;
+  rep.stage = "bench.register";
+  const fs::path conf = data_dir() / "stanford_bunny" / "bun.conf";
+  auto in = load_stanford_views(conf, {});
+  if (!in) return error(in.error().message);
+  const std::vector<std::string> ring = {"bun000.ply", "bun045.ply", "bun090.ply",
+                                         "bun180.ply", "bun270.ply", "bun315.ply"};
+  std::vector<RegistrationView> views;
+  std::vector<Eigen::Isometry3d> truth;
+  for (const auto& name : ring)
+    for (size_t i = 0; i < in->views.size(); ++i)
+      if (in->views[i].name == name) views.push_back(in->views[i]), truth.push_back(in->given[i]);
+  if (views.size() != ring.size()) return error(conf.string() + ": the six ring scans are not all there");
+  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+  size_t n = 0;
+  for (size_t i = 0; i < views.size(); ++i)
+    for (size_t k = 0; k < views[i].cloud.size(); k += 16) centre += truth[i] * views[i].cloud.points[k].cast<double>(), ++n;
+  centre /= double(n);
+  SweepTable t;
+  t.columns = {"seed", "iterations", "seconds", "max_rot_err_deg", "max_trans_err_mm", "rms_mm"};
+  auto rms_at = [&](const std::vector<Eigen::Isometry3d>& poses, double voxel) {
+    RegistrationOptions o;
+    o.progress = false;
+    o.max_solver_iterations = 0;
+    o.max_rounds_per_level = 1;
+    o.voxel_m = {voxel};
+    o.try_flip = false;
+    auto vs = views;
+    for (size_t i = 0; i < vs.size(); ++i) vs[i].initial = poses[i];
+    auto r = register_views(vs, o);
+    return r ? r->rms_m : -1.0;
+  };
+  double ours_best = 1e9, icp_best = 1e9, ours_seconds = 0, icp_seconds = 0;
+  for (int seed = 1; seed <= seeds; ++seed) {
+    const auto start = perturb_poses(truth, 5, 0.005, static_cast<uint64_t>(seed), centre, 0);
+    auto vs = views;
+    for (size_t i = 0; i < vs.size(); ++i) vs[i].initial = start[i];
+    RegistrationOptions o;
+    o.progress = false;
+    double final_voxel = 0.0005;
+    o.on_round = [&](const RegistrationRound& r) {
+      const PoseError e = pose_error(r.poses, truth, centre);
+      t.row_labels.push_back("ours (Ceres, all views), seed " + std::to_string(seed));
+      t.rows.push_back({double(seed), double(r.solver_iterations), r.seconds, e.max_rotation_deg,
+                        1e3 * e.max_translation_m, 1e3 * r.rms_m});
+      final_voxel = r.voxel_m;
+    };
+    auto r = register_views(vs, o);
+    if (!r) return error(r.error().message);
+    const PoseError eo = pose_error(r->poses, truth, centre);
+    ours_best = std::min(ours_best, eo.max_rotation_deg);
+    ours_seconds += r->seconds;
+    for (int iters : {1, 2, 5, 10, 20, 40, 80}) {
+      IcpPeerOptions io;
+      io.max_iterations = iters;
+      io.voxel_m = final_voxel;
+      Stopwatch sw;
+      const auto poses = chain_icp(vs, io);
+      const double secs = sw.seconds();
+      const PoseError e = pose_error(poses, truth, centre);
+      t.row_labels.push_back("PCL ICP chained, seed " + std::to_string(seed));
+      t.rows.push_back({double(seed), double(iters), secs, e.max_rotation_deg, 1e3 * e.max_translation_m,
+                        1e3 * rms_at(poses, final_voxel)});
+      if (iters == 80) icp_best = std::min(icp_best, e.max_rotation_deg), icp_seconds += secs;
+    }
+    std::fprintf(stderr, "seed %d: ours %.3f deg in %.1f s; chained ICP (80 iterations) %.3f deg\n", seed,
+                 eo.max_rotation_deg, r->seconds, t.rows.back()[3]);
+  }
+  if (auto st = t.write_csv(out / "register.csv"); !st) return error(st.error().message);
+  PlotSpec spec{"Registration of the Stanford ring scans from 5 deg / 5 mm: error against run time", "seconds",
+                "max rotation error vs bun.conf (deg)", "seconds", {"max_rot_err_deg"}, true, false, true};
+  if (auto st = plot_png(t, spec, out / "register.png"); !st) rep.warnings.push_back(st.error().message);
+  PlotSpec rms{"Registration: RMS point-to-plane against iterations", "iterations", "RMS (mm)", "iterations",
+               {"rms_mm"}, true, false, true};
+  if (auto st = plot_png(t, rms, out / "register_rms.png"); !st) rep.warnings.push_back(st.error().message);
+  rep.errors["ours_best_max_rotation_deg"] = ours_best;
+  rep.errors["icp_chain_best_max_rotation_deg"] = icp_best;
+  rep.counts["ours_mean_seconds"] = ours_seconds / seeds;
+  rep.counts["icp_chain_80_mean_seconds"] = icp_seconds / seeds;
+  rep.seconds = total.seconds();
+  return finish(rep, out / "report.json");
+}
+
 }  // namespace
 
 void add_bench_commands(CLI::App& app) {
@@ -224,7 +316,8 @@ void add_bench_commands(CLI::App& app) {
   auto out = std::make_shared<std::string>();
   auto repeats = std::make_shared<int>(3);
   auto scene = std::make_shared<std::string>("blob");
-  sub->add_option("stage", *stage, "rig (render time vs image size), capture (per-frame decode + write overhead), calibrate (error vs views)")
+  sub->add_option("stage", *stage, "rig (render time vs image size), capture (per-frame decode + write overhead), calibrate (error vs views), "
+                  "register (pose error vs seconds, Stanford ring scans, against chained PCL ICP; --repeats = seeds)")
       ->required();
   sub->add_option("--out", *out, "output folder")->required();
   sub->add_option("--repeats", *repeats, "renders per point (median)")->capture_default_str();
@@ -234,7 +327,8 @@ void add_bench_commands(CLI::App& app) {
       if (*stage == "rig") return bench_rig(*out, std::max(1, *repeats), *scene);
       if (*stage == "capture") return bench_capture(*out, std::max(5, *repeats * 10));
       if (*stage == "calibrate") return bench_calibrate(*out);
-      std::fprintf(stderr, "s2r bench %s: not yet available in this build (only 'rig', 'capture' and 'calibrate')\n", stage->c_str());
+      if (*stage == "register") return bench_register(*out, std::max(1, *repeats));
+      std::fprintf(stderr, "s2r bench %s: not yet available in this build (only 'rig', 'capture', 'calibrate' and 'register')\n", stage->c_str());
       return 2;
     });
   });
