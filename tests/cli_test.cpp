@@ -5,6 +5,7 @@
 #include <array>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
 #include <string>
 
 namespace {
@@ -65,3 +66,40 @@ TEST(Cli, SynthInspectPreviewWithReports) {
 }
 
 }  // namespace
+
+TEST(Cli, RegisterWritesPosesConfAndPlots) {
+  const fs::path dir = fs::temp_directory_path() / ("s2r_cli_reg_" + std::to_string(getpid()));
+  fs::remove_all(dir);
+  // Usage errors are clear.
+  auto r = s2r("register --out " + (dir / "x").string());
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.out.find("either a session or --stanford"), std::string::npos) << r.out;
+  const std::string conf = std::string(S2R_DATA_DIR) + "/stanford_bunny/bun.conf";
+  r = s2r("register --stanford " + conf + " --perturb 5 --out " + (dir / "x").string());
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.out.find("DEG,M"), std::string::npos) << r.out;
+  r = s2r("register --stanford " + conf + " --voxels 0.004,-1 --out " + (dir / "x").string());
+  EXPECT_EQ(r.code, 1);
+  // A synthetic session has no given poses: without a calibration there is no start.
+  r = s2r("-q synth --scene blob --views 4 --width 160 --height 120 --out " + (dir / "s").string());
+  ASSERT_EQ(r.code, 0) << r.out;
+  r = s2r("-q register " + (dir / "s").string() + " --out " + (dir / "sr").string());
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.out.find("calibration"), std::string::npos) << r.out;
+  if (!fs::exists(conf)) GTEST_SKIP() << "real data not found";
+  // The real scans, coarse levels only (quick): every output is there and the
+  // .conf keeps the input's lines.
+  r = s2r("-q register --stanford " + conf + " --perturb 2,0.002 --voxels 0.004,0.002 --out " + (dir / "b").string());
+  ASSERT_EQ(r.code, 0) << r.out;
+  for (const char* f : {"poses.json", "report.json", "convergence.csv", "views.csv", "pairs.csv", "bun.conf"})
+    EXPECT_TRUE(fs::exists(dir / "b" / f)) << f;
+  std::ifstream a(conf), b(dir / "b" / "bun.conf");
+  std::string la, lb;
+  int lines = 0;
+  while (std::getline(a, la) && std::getline(b, lb)) {
+    ++lines;
+    EXPECT_EQ(la.substr(0, la.find(".ply") + 1), lb.substr(0, lb.find(".ply") + 1));
+  }
+  EXPECT_GE(lines, 11);  // camera + 10 bmesh lines (+ the file's blank line)
+  fs::remove_all(dir);
+}
