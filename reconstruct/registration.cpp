@@ -751,7 +751,17 @@ void add_to_report(const RegistrationResult& r, const std::vector<RegistrationVi
   report.errors["worst_pair_rms_m"] = worst_pair;
   report.errors["worst_view_rms_m"] = worst_view;
   report.counts["least_pair_overlap"] = r.pairs.empty() ? 0 : least_overlap;
-  (void)views;
+  // Every pair in one readable line: "a-b overlap % / RMS mm".
+  std::string pairs;
+  for (const auto& p : r.pairs)
+    pairs += fmt::format("{}{}-{} {:.0f}% {:.3f}mm", pairs.empty() ? "" : ", ", p.a, p.b, 100 * p.overlap, 1e3 * p.rms_m);
+  report.params["pairs_overlap_rms"] = pairs;
+  std::string flagged_views;
+  for (size_t i = 0; i < r.views.size(); ++i)
+    if (r.views[i].flagged)
+      flagged_views += (flagged_views.empty() ? "" : "; ") + (i < views.size() ? views[i].name : std::to_string(i)) +
+                       ": " + r.views[i].note;
+  if (!flagged_views.empty()) report.params["flagged_views"] = flagged_views;
   if (r.slide.computed) {
     report.errors["slide_sensitivity"] = r.slide.sensitivity;
     report.errors["slide_sigma_deg"] = r.slide.sigma_deg;
