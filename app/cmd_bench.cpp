@@ -238,24 +238,12 @@ int bench_register(const fs::path& out, int seeds) {
     for (size_t i = 0; i < in->views.size(); ++i)
       if (in->views[i].name == name) views.push_back(in->views[i]), truth.push_back(in->given[i]);
   if (views.size() != ring.size()) return error(conf.string() + ": the six ring scans are not all there");
-  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
-  size_t n = 0;
-  for (size_t i = 0; i < views.size(); ++i)
-    for (size_t k = 0; k < views[i].cloud.size(); k += 16) centre += truth[i] * views[i].cloud.points[k].cast<double>(), ++n;
-  centre /= double(n);
+  const Eigen::Vector3d centre = points_centre(views, truth);
   SweepTable t;
   t.columns = {"seed", "iterations", "seconds", "max_rot_err_deg", "max_trans_err_mm", "rms_mm"};
   auto rms_at = [&](const std::vector<Eigen::Isometry3d>& poses, double voxel) {
-    RegistrationOptions o;
-    o.progress = false;
-    o.max_solver_iterations = 0;
-    o.max_rounds_per_level = 1;
-    o.voxel_m = {voxel};
-    o.try_flip = false;
-    auto vs = views;
-    for (size_t i = 0; i < vs.size(); ++i) vs[i].initial = poses[i];
-    auto r = register_views(vs, o);
-    return r ? r->rms_m : -1.0;
+    auto r = fit_rms(views, poses, voxel);
+    return r ? *r : -1.0;
   };
   double ours_best = 1e9, icp_best = 1e9, ours_seconds = 0, icp_seconds = 0;
   for (int seed = 1; seed <= seeds; ++seed) {

@@ -10,20 +10,6 @@
 namespace s2r {
 namespace fs = std::filesystem;
 
-namespace {
-
-Eigen::Vector3d centre_of(const RegistrationInput& in) {
-  Eigen::Vector3d c = Eigen::Vector3d::Zero();
-  size_t n = 0;
-  for (size_t i = 0; i < in.views.size(); ++i) {
-    const auto& pts = in.views[i].cloud.points;
-    for (size_t k = 0; k < pts.size(); k += 16) c += in.given[i] * pts[k].cast<double>(), ++n;
-  }
-  return n ? Eigen::Vector3d(c / double(n)) : c;
-}
-
-}  // namespace
-
 Result<Report> run_register_job(const RegisterJob& job) {
   Stopwatch clock;
   Report report;
@@ -75,7 +61,7 @@ Result<Report> run_register_job(const RegisterJob& job) {
     o.turntable->sigma_angle_deg = job.table_sigma_deg;
   }
   // Start.
-  const Eigen::Vector3d centre = centre_of(*in);
+  const Eigen::Vector3d centre = points_centre(in->views, in->given);
   std::vector<Eigen::Isometry3d> start = in->given;
   if (job.perturb_deg || job.perturb_m) {
     start = perturb_poses(in->given, job.perturb_deg.value_or(0), job.perturb_m.value_or(0), job.seed, centre,

@@ -135,16 +135,17 @@ void find_pair(PairData& pd, const LevelView& va, const LevelView& vb, const Eig
     return j;
   };
   constexpr size_t kProbe = 8;
-  size_t probed = 0, hits = 0;
-  for (size_t s = 0; s < va.sources.size(); s += kProbe, ++probed) hits += match(s) >= 0;
-  if (probed > 20 && double(hits) / probed < 0.5 * min_overlap) {
+  std::vector<int> probe;  // match of every kProbe-th source, kept for the full pass
+  size_t hits = 0;
+  for (size_t s = 0; s < va.sources.size(); s += kProbe) hits += (probe.emplace_back(match(s)) >= 0);
+  if (probe.size() > 20 && double(hits) / probe.size() < 0.5 * min_overlap) {
     // Too little overlap to use: record the probe's estimate only.
     for (size_t s = 0, k = 0; s < va.sources.size() && k < hits; s += kProbe, ++k) pd.matched_a[s] = 1;
     return;
   }
   const size_t stride = std::max<size_t>(1, va.sources.size() / std::max<size_t>(1, cap));
   for (size_t s = 0; s < va.sources.size(); ++s) {
-    const int j = match(s);
+    const int j = s % kProbe == 0 ? probe[s / kProbe] : match(s);
     if (j < 0) continue;
     pd.matched_a[s] = 1;
     if (s % stride != 0) continue;
@@ -178,7 +179,6 @@ struct Run {
   int iterations = 0, rounds = 0;
   std::vector<RegistrationRound> history;
   std::vector<PairData> final_pairs;  // last round's, ordered pairs (a, b) and (b, a) adjacent
-  std::vector<std::pair<int, int>> active;
   double final_sigma = 1;
   // Shared by every round's problem (which does not own them); the last
   // problem outlives the rounds for the Hessian analysis.
@@ -191,16 +191,15 @@ struct Run {
   std::vector<double> theta_sensitivity;            // per view, last measured (-1 = not measured)
 };
 
-bool is_variable(const RegistrationOptions& o, int i, int n) {
+bool is_variable(const RegistrationOptions& o, int i) {
   if (o.variable_views.empty()) return i != o.fixed_view;
-  (void)n;
   return std::find(o.variable_views.begin(), o.variable_views.end(), i) != o.variable_views.end();
 }
 
 // One round's problem: residuals for every active pair's correspondences.
 std::unique_ptr<ceres::Problem> build_problem(Run& run, PoseState& st, const std::vector<PairData>& pairs,
-                                              double sigma, ceres::LossFunction* loss,
-                                              ceres::Manifold* quat_manifold) {
+                                              double sigma) {
+  ceres::LossFunction* loss = &run.loss;
   ceres::Problem::Options po;
   po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   po.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
@@ -211,7 +210,7 @@ std::unique_ptr<ceres::Problem> build_problem(Run& run, PoseState& st, const std
   const bool free = st.mode_ == RegistrationMode::kFree;
   std::vector<uint8_t> used(static_cast<size_t>(n), 0);
   for (const auto& pd : pairs) {
-    const bool var_a = is_variable(run.o, pd.a, n), var_b = is_variable(run.o, pd.b, n);
+    const bool var_a = is_variable(run.o, pd.a), var_b = is_variable(run.o, pd.b);
     if (!var_a && !var_b) continue;
     used[static_cast<size_t>(pd.a)] = used[static_cast<size_t>(pd.b)] = 1;
     for (const auto& c : pd.ab) {
@@ -235,9 +234,9 @@ std::unique_ptr<ceres::Problem> build_problem(Run& run, PoseState& st, const std
   run.theta_views.clear();
   for (int i = 0; i < n; ++i) {
     if (!used[static_cast<size_t>(i)]) continue;
-    const bool var = is_variable(run.o, i, n);
+    const bool var = is_variable(run.o, i);
     if (free) {
-      problem->SetManifold(st.q_[i].data(), quat_manifold);
+      problem->SetManifold(st.q_[i].data(), &run.quat_manifold);
       if (!var) {
         problem->SetParameterBlockConstant(st.q_[i].data());
         problem->SetParameterBlockConstant(st.t_[i].data());
@@ -324,7 +323,7 @@ Status run_levels(Run& run, PoseState& st) {
     std::vector<std::pair<int, int>> candidates;
     for (int a = 0; a < n; ++a)
       for (int b = a + 1; b < n; ++b)
-        if (is_variable(run.o, a, n) || is_variable(run.o, b, n)) candidates.emplace_back(a, b);
+        if (is_variable(run.o, a) || is_variable(run.o, b)) candidates.emplace_back(a, b);
     const size_t cap = 800;  // correspondences per ordered pair in the problem
     // Coarse levels end when the poses move by a twentieth of their voxel.
     const bool last = level + 1 == run.voxels.size();
@@ -345,16 +344,14 @@ Status run_levels(Run& run, PoseState& st) {
         find_pair(found[2 * k + 1], lv[b], lv[a], before[b], before[a], reach, cos_max, cap, run.o.min_pair_overlap);
       });
       std::vector<PairData> pairs;
-      run.active.clear();
       for (size_t k = 0; k < candidates.size(); ++k) {
         const double ov = pair_overlap(found[2 * k], found[2 * k + 1]);
         if (ov < run.o.min_pair_overlap || found[2 * k].ab.size() + found[2 * k + 1].ab.size() < 12) continue;
-        run.active.push_back(candidates[k]);
         pairs.push_back(std::move(found[2 * k]));
         pairs.push_back(std::move(found[2 * k + 1]));
       }
       if (pairs.empty()) break;
-      auto problem = build_problem(run, st, pairs, sigma, &run.loss, &run.quat_manifold);
+      auto problem = build_problem(run, st, pairs, sigma);
       if (st.mode_ == RegistrationMode::kTurntable) hold_undetermined_angles(run, st, *problem, sigma);
       ceres::Solver::Options so;
       so.max_num_iterations = run.o.max_solver_iterations;
@@ -542,7 +539,7 @@ SlideAnalysis analyse_slide(Run& run, const RegistrationResult& res) {
   // The variable views in block order.
   std::vector<int> view_of;
   for (int i = 0; i < static_cast<int>(run.views.size()); ++i)
-    if (is_variable(run.o, i, static_cast<int>(run.views.size())) && res.views[static_cast<size_t>(i)].pairs > 0)
+    if (is_variable(run.o, i) && res.views[static_cast<size_t>(i)].pairs > 0)
       view_of.push_back(i);
   sa.sensitivity = std::numeric_limits<double>::infinity();
   for (int k = 0; k < nviews && k < static_cast<int>(view_of.size()); ++k) {
@@ -665,7 +662,7 @@ Result<RegistrationResult> register_views(const std::vector<RegistrationView>& v
     std::vector<Eigen::Isometry3d> start = res->poses;
     for (int i = 0; i < n; ++i) {
       const ViewStats& vs = res->views[static_cast<size_t>(i)];
-      if (!vs.flagged || !is_variable(o, i, n)) continue;
+      if (!vs.flagged || !is_variable(o, i)) continue;
       RegistrationOptions one = o;
       one.variable_views = {i};
       one.try_flip = false;
@@ -725,6 +722,31 @@ PoseError pose_error(const std::vector<Eigen::Isometry3d>& est, const std::vecto
     e.max_translation_m = std::max(e.max_translation_m, e.translation_m.back());
   }
   return e;
+}
+
+Eigen::Vector3d points_centre(const std::vector<RegistrationView>& views,
+                              const std::vector<Eigen::Isometry3d>& poses, size_t stride) {
+  Eigen::Vector3d c = Eigen::Vector3d::Zero();
+  size_t n = 0;
+  for (size_t i = 0; i < views.size() && i < poses.size(); ++i)
+    for (size_t k = 0; k < views[i].cloud.size(); k += std::max<size_t>(1, stride))
+      c += poses[i] * views[i].cloud.points[k].cast<double>(), ++n;
+  return n ? Eigen::Vector3d(c / double(n)) : c;
+}
+
+Result<double> fit_rms(std::vector<RegistrationView> views, const std::vector<Eigen::Isometry3d>& poses,
+                       double voxel_m, RegistrationOptions o) {
+  if (poses.size() != views.size()) return fail("fit_rms: one pose per view");
+  for (size_t i = 0; i < views.size(); ++i) views[i].initial = poses[i];
+  o.max_solver_iterations = 0;
+  o.max_rounds_per_level = 1;
+  o.voxel_m = {voxel_m};
+  o.try_flip = false;
+  o.progress = false;
+  o.on_round = nullptr;
+  auto r = register_views(views, o);
+  if (!r) return std::unexpected(r.error());
+  return r->rms_m;
 }
 
 void add_to_report(const RegistrationResult& r, const std::vector<RegistrationView>& views, Report& report) {

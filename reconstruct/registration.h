@@ -161,6 +161,17 @@ struct PoseError {
 PoseError pose_error(const std::vector<Eigen::Isometry3d>& estimated,
                      const std::vector<Eigen::Isometry3d>& truth, const Eigen::Vector3d& centre, int ref = 0);
 
+// Centre of the views' points placed by `poses` (every `stride`-th point):
+// where pose errors are measured.
+Eigen::Vector3d points_centre(const std::vector<RegistrationView>& views,
+                              const std::vector<Eigen::Isometry3d>& poses, size_t stride = 16);
+
+// Point-to-plane RMS of the views held at `poses`, at one voxel size: how well
+// given poses fit, by the same measure the registration minimises (nothing is
+// solved; `base` supplies the other options).
+Result<double> fit_rms(std::vector<RegistrationView> views, const std::vector<Eigen::Isometry3d>& poses,
+                       double voxel_m, RegistrationOptions base = {});
+
 // The registration's figures in a stage report.
 void add_to_report(const RegistrationResult& r, const std::vector<RegistrationView>& views, Report& report);
 

@@ -68,12 +68,7 @@ Outcome run(const Rig& rig, RegistrationOptions o, double perturb_deg = 0, doubl
   auto in = load_session_views(rig.session, &rig.cal, {});
   EXPECT_TRUE(in) << in.error().message;
   if (edit) edit(*in);
-  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
-  size_t n = 0;
-  for (size_t i = 0; i < in->views.size(); ++i)
-    for (size_t k = 0; k < in->views[i].cloud.size(); k += 32)
-      centre += in->given[i] * in->views[i].cloud.points[k].cast<double>(), ++n;
-  centre /= double(n);
+  const Eigen::Vector3d centre = points_centre(in->views, in->given, 32);
   if (perturb_deg > 0 || perturb_m > 0) {
     const auto start = perturb_poses(in->given, perturb_deg, perturb_m, 3, centre);
     for (size_t i = 0; i < in->views.size(); ++i) in->views[i].initial = start[i];
