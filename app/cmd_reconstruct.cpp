@@ -27,8 +27,8 @@ void add_register(CLI::App& app) {
       "Register all views at once (Ceres): point-to-plane between every overlapping pair, coarse to fine.\n"
       "Input: a session (depth or scanner points; initial poses from --calibration's turntable axis and\n"
       "the table angles, or the session's given poses) or Stanford range scans (--stanford CONF).\n"
-      "Writes OUT/poses.json, OUT/report.json, OUT/convergence.csv/png and, for --stanford, OUT/<CONF>\n"
-      "in the input's own conventions.");
+      "Writes OUT/poses.json, OUT/report.json, OUT/views.csv, OUT/pairs.csv, OUT/convergence.csv/png\n"
+      "(RMS and pose error against seconds) and, for --stanford, OUT/<CONF> in the input's own conventions.");
   struct Args {
     std::string session, stanford, calibration, out, mode = "free", perturb, fixed, voxels;
     uint64_t seed = 1;

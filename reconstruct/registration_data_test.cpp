@@ -65,6 +65,8 @@ TEST(StanfordRegistration, PerturbedBunnyReturnsToTheConfPoses) {
       };
       const int a = index(kRing[k]), b = index(kRing[(k + 1) % kRing.size()]);
       const PoseError pe = pose_error(r->poses, in->given, centre, a);
+      std::printf("seed %d neighbours %s -> %s: %.3f deg %.3f mm\n", int(seed), kRing[k].c_str(),
+                  views[b].name.c_str(), pe.rotation_deg[b], 1e3 * pe.translation_m[b]);
       EXPECT_LT(pe.rotation_deg[b], 0.3) << kRing[k] << " -> " << views[b].name;
       EXPECT_LT(pe.translation_m[b], 0.001) << kRing[k] << " -> " << views[b].name;
     }
