@@ -1,8 +1,9 @@
-// Subcommands of the reconstruct stage: register (and reconstruct, to come).
+// Subcommands of the reconstruct stage: register, reconstruct.
 #include <cstdio>
 #include <sstream>
 
 #include "app/commands.h"
+#include "reconstruct/reconstruct_job.h"
 #include "reconstruct/register_job.h"
 
 namespace s2r::cli {
@@ -91,11 +92,87 @@ void add_register(CLI::App& app) {
   });
 }
 
+void add_reconstruct(CLI::App& app) {
+  auto* sub = app.add_subcommand(
+      "reconstruct",
+      "Fuse a session's registered views into a model of microfacet billboards.\n"
+      "Depth is fused into a sparse signed-distance volume (OpenVDB); against a uniform backdrop the\n"
+      "silhouettes add a visual hull, whose voxels that depth does not explain become fuzzy facets\n"
+      "(hair, strands); without depth the hull alone gives the geometry. Every voxel with evidence becomes\n"
+      "a facet; reliable voxels keep the voxel size, unreliable and fuzzy regions merge into facets twice\n"
+      "as large. Each camera's image is stored with the distance to the fused surface along every ray.\n"
+      "Poses: --poses, else the session's given poses, else --calibration's turntable axis and the table\n"
+      "angles, else the synthetic rig's ground truth.\n"
+      "Writes OUT/model.json, facets.bin, facet_cameras.bin, cameras/NNNN.exr (RGBA + Z), surface.ply\n"
+      "and report.json (seconds per step, facets, memory, voxel sizes, predicted texel error, skipped work).");
+  struct Args {
+    std::string session, out, poses, calibration, voxel = "auto", geometry = "auto", holdout;
+    double target_error = 0.5, truncation = 4;
+    bool uniform = false, no_textures = false;
+    int threads = 0;
+  };
+  auto a = std::make_shared<Args>();
+  sub->add_option("session", a->session, "capture session folder")->required();
+  sub->add_option("--out", a->out, "model folder")->required();
+  sub->add_option("--poses", a->poses, "registered poses (s2r register)");
+  sub->add_option("--calibration", a->calibration, "calibration file (intrinsics, depth extrinsic, turntable axis)");
+  sub->add_option("--voxel", a->voxel,
+                  "facet size w in metres, or 'auto': the largest w whose texel error bound (w/2) sin(gap/2) stays under "
+                  "--target-error pixels at the cameras' distance, halved for reliable regions")
+      ->capture_default_str();
+  sub->add_option("--target-error", a->target_error, "on-screen texel error in pixels that --voxel auto keeps under")
+      ->capture_default_str();
+  sub->add_option("--geometry", a->geometry,
+                  "depth (fusion), hull (silhouettes only), both, or auto (depth, plus the hull against a uniform backdrop)")
+      ->check(CLI::IsMember({"auto", "depth", "hull", "both"}))
+      ->capture_default_str();
+  sub->add_option("--holdout", a->holdout, "I,J,...: frames left out entirely (for evaluation)");
+  sub->add_option("--truncation", a->truncation, "signed-distance truncation in voxels")->capture_default_str();
+  sub->add_flag("--uniform", a->uniform, "one facet size everywhere (no larger facets for unreliable regions)");
+  sub->add_flag("--no-textures", a->no_textures, "do not write the per-camera RGBA + depth textures");
+  sub->add_option("--threads", a->threads, "worker threads (0 = all cores)")->capture_default_str();
+  sub->callback([a] {
+    set_runner([a] {
+      ReconstructJob job;
+      job.session = a->session;
+      job.out = a->out;
+      job.poses = a->poses;
+      job.calibration = a->calibration;
+      job.geometry = a->geometry;
+      job.target_error_px = a->target_error;
+      job.truncation_voxels = a->truncation;
+      job.per_region = !a->uniform;
+      job.textures = !a->no_textures;
+      job.threads = a->threads;
+      if (a->voxel != "auto") {
+        char* end = nullptr;
+        const double v = std::strtod(a->voxel.c_str(), &end);
+        if (end == a->voxel.c_str() || *end != '\0' || !(v > 0) || !std::isfinite(v))
+          return error("--voxel: '" + a->voxel + "' is neither 'auto' nor a positive length in metres");
+        job.voxel_m = v;
+      }
+      if (!a->holdout.empty()) {
+        std::istringstream in(a->holdout);
+        std::string item;
+        while (std::getline(in, item, ',')) {
+          char* end = nullptr;
+          const long v = std::strtol(item.c_str(), &end, 10);
+          if (end == item.c_str() || *end != '\0' || v < 0) return error("--holdout: '" + item + "' is not a frame index");
+          job.holdout.push_back(int(v));
+        }
+      }
+      auto r = run_reconstruct_job(job);
+      if (!r) return error(r.error().message);
+      return finish(*r, fs::path(a->out) / "report.json");
+    });
+  });
+}
+
 }  // namespace
 
 void add_reconstruct_commands(CLI::App& app) {
   add_register(app);
-  add_not_yet(app, "reconstruct", "Fusion, microfacets, octree, per-camera depth");
+  add_reconstruct(app);
 }
 
 }  // namespace s2r::cli

@@ -3,7 +3,9 @@
 #include <OpenImageIO/imagebuf.h>
 #include <OpenImageIO/imageio.h>
 
+#include <algorithm>
 #include <cmath>
+#include <vector>
 
 #include "core/atomic_file.h"
 
@@ -85,6 +87,51 @@ Status write_image(const fs::path& path, const ImageU16& image, PngEffort effort
 }
 Status write_image(const fs::path& path, const ImageF& image) {
   return write_as(path, image, oiio::TypeDesc::FLOAT);
+}
+
+Status write_rgbaz(const fs::path& path, const RgbazImage& image) {
+  const ImageU8& c = image.rgba;
+  const ImageF& d = image.distance;
+  if (c.empty() || c.channels != 4 || d.channels != 1 || c.width != d.width || c.height != d.height)
+    return fail("'" + path.string() + "': RGBA+Z texture needs a 4-channel colour image and a 1-channel distance of the same size");
+  std::vector<float> px(c.pixels() * 5);
+  for (size_t i = 0; i < c.pixels(); ++i) {
+    for (int k = 0; k < 4; ++k) px[i * 5 + k] = c.data[i * 4 + k] / 255.f;
+    px[i * 5 + 4] = d.data[i];
+  }
+  return write_via_temp(path, [&](const fs::path& tmp) -> Status {
+    auto out = oiio::ImageOutput::create("exr");
+    if (!out) return fail("no OpenEXR writer: " + oiio::geterror());
+    oiio::ImageSpec spec(c.width, c.height, 5, oiio::TypeDesc::HALF);
+    spec.channelnames = {"R", "G", "B", "A", "Z"};
+    spec.alpha_channel = 3;
+    spec.z_channel = 4;
+    spec.channelformats = {oiio::TypeDesc::HALF, oiio::TypeDesc::HALF, oiio::TypeDesc::HALF, oiio::TypeDesc::HALF,
+                           oiio::TypeDesc::FLOAT};
+    spec.attribute("compression", "none");
+    if (!out->open(tmp.string(), spec)) return fail(out->geterror());
+    if (!out->write_image(oiio::TypeDesc::FLOAT, px.data())) return fail(out->geterror());
+    if (!out->close()) return fail(out->geterror());
+    return {};
+  });
+}
+
+Result<RgbazImage> read_rgbaz(const fs::path& path) {
+  auto all = read_as<float>(path, oiio::TypeDesc::FLOAT);
+  if (!all) return std::unexpected(all.error());
+  if (all->channels != 5) return fail("'" + path.string() + "': expected 5 channels (R G B A Z), found " + std::to_string(all->channels));
+  RgbazImage out{ImageU8(all->width, all->height, 4), ImageF(all->width, all->height, 1)};
+  for (size_t i = 0; i < all->pixels(); ++i) {
+    for (int k = 0; k < 4; ++k) {
+      const float v = all->data[i * 5 + k];
+      if (!std::isfinite(v)) return fail("'" + path.string() + "': non-finite colour at pixel " + std::to_string(i));
+      out.rgba.data[i * 4 + k] = static_cast<uint8_t>(std::lround(std::clamp(v, 0.f, 1.f) * 255.f));
+    }
+    const float z = all->data[i * 5 + 4];
+    if (!std::isfinite(z) || z < 0) return fail("'" + path.string() + "': distance at pixel " + std::to_string(i) + " is not a finite value >= 0");
+    out.distance.data[i] = z;
+  }
+  return out;
 }
 
 }  // namespace s2r

@@ -28,4 +28,15 @@ Status write_image(const std::filesystem::path& path, const ImageU8& image, PngE
 Status write_image(const std::filesystem::path& path, const ImageU16& image, PngEffort effort = PngEffort::kCompact);
 Status write_image(const std::filesystem::path& path, const ImageF& image);  // EXR
 
+// Camera textures for the viewer (docs/formats.md, "Model"): one OpenEXR file
+// with half-float R, G, B, A (colour 0..1, A = 1 where the fused geometry is
+// hit) and a float Z channel holding the distance d along the pixel's ray in
+// metres (0 where nothing is hit).
+struct RgbazImage {
+  ImageU8 rgba;   // 4 channels
+  ImageF distance;  // 1 channel
+};
+Status write_rgbaz(const std::filesystem::path& path, const RgbazImage& image);
+Result<RgbazImage> read_rgbaz(const std::filesystem::path& path);
+
 }  // namespace s2r

@@ -1,0 +1,35 @@
+// Per-camera depth (DESIGN.md section 6.2): the fused geometry seen from every
+// input camera, so each texel has its colour and the distance d to the object
+// along its ray. Ray casting on Embree (only camera_depth.cpp includes it).
+#pragma once
+
+#include <memory>
+
+#include <Eigen/Geometry>
+
+#include "core/camera_model.h"
+#include "core/image.h"
+#include "core/mesh.h"
+#include "core/result.h"
+
+namespace s2r {
+
+class MeshRaycaster {
+ public:
+  static Result<std::unique_ptr<MeshRaycaster>> create(const Mesh& mesh);
+  ~MeshRaycaster();
+
+  // Distance along each pixel's ray (through the lens model) to the first hit,
+  // 0 where the ray misses. Pixels are sampled at their centres.
+  ImageF distance_image(const Intrinsics& K, const Eigen::Isometry3d& world_from_camera, int threads = 0) const;
+  // Distance from `origin` along unit `dir` to the first hit, or 0.
+  float distance(const Eigen::Vector3f& origin, const Eigen::Vector3f& dir) const;
+  size_t triangles() const;
+
+ private:
+  struct Impl;
+  explicit MeshRaycaster(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace s2r

@@ -1,0 +1,518 @@
+// The sparse volume on OpenVDB (the only translation unit that includes it).
+#include "reconstruct/fusion.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <mutex>
+
+#include <openvdb/openvdb.h>
+#include <openvdb/tools/Morphology.h>
+#include <openvdb/tools/TopologyToLevelSet.h>
+#include <openvdb/tools/VolumeToMesh.h>
+#include <openvdb/tree/LeafManager.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
+namespace s2r {
+
+namespace {
+
+using openvdb::Coord;
+// Per voxel: (mean signed distance in metres, number of views, Welford M2).
+using TsdfGrid = openvdb::Vec3SGrid;
+using TsdfTree = TsdfGrid::TreeType;
+
+void vdb_init() {
+  static std::once_flag once;
+  std::call_once(once, [] { openvdb::initialize(); });
+}
+
+template <class F>
+void in_arena(int threads, F&& f) {
+  if (threads > 0) {
+    tbb::task_arena arena(threads);
+    arena.execute(f);
+  } else {
+    f();
+  }
+}
+
+// Summed-area table of a mask (counts of non-zero pixels).
+struct MaskTable {
+  int w = 0, h = 0;
+  std::vector<int32_t> sum;  // (w+1) x (h+1)
+  explicit MaskTable(const ImageU8& m) : w(m.width), h(m.height), sum(size_t(w + 1) * (h + 1), 0) {
+    for (int y = 0; y < h; ++y) {
+      int32_t row = 0;
+      for (int x = 0; x < w; ++x) {
+        row += m.data[(size_t(y) * w + x) * m.channels] != 0;
+        sum[size_t(y + 1) * (w + 1) + x + 1] = sum[size_t(y) * (w + 1) + x + 1] + row;
+      }
+    }
+  }
+  // Foreground pixels in [x0,x1] x [y0,y1] (inclusive, clipped to the image).
+  int32_t count(int x0, int y0, int x1, int y1) const {
+    x0 = std::max(x0, 0), y0 = std::max(y0, 0), x1 = std::min(x1, w - 1), y1 = std::min(y1, h - 1);
+    if (x0 > x1 || y0 > y1) return 0;
+    auto at = [&](int x, int y) { return sum[size_t(y) * (w + 1) + x]; };
+    return at(x1 + 1, y1 + 1) - at(x0, y1 + 1) - at(x1 + 1, y0) + at(x0, y0);
+  }
+};
+
+// A sphere's projected footprint as an inclusive pixel window (conservative by
+// a pixel for lens distortion). Empty when the sphere reaches the camera plane.
+struct Window {
+  int x0, y0, x1, y1;
+  bool inside(int w, int h) const { return x0 >= 0 && y0 >= 0 && x1 < w && y1 < h; }
+  bool outside(int w, int h) const { return x1 < 0 || y1 < 0 || x0 >= w || y0 >= h; }
+};
+std::optional<Window> footprint(const Intrinsics& K, const Eigen::Vector3d& p_cam, double radius) {
+  if (p_cam.z() - radius <= 1e-3) return std::nullopt;
+  auto px = K.project(p_cam);
+  if (!px) return std::nullopt;
+  const double r = std::max(K.fx, K.fy) * radius / (p_cam.z() - radius) + 1.0;
+  return Window{int(std::floor(px->x() - r + 0.5)), int(std::floor(px->y() - r + 0.5)),
+                int(std::floor(px->x() + r + 0.5)), int(std::floor(px->y() + r + 0.5))};
+}
+
+Coord coord_of(const Eigen::Vector3d& p, double voxel) {
+  return Coord(int(std::lround(p.x() / voxel)), int(std::lround(p.y() / voxel)), int(std::lround(p.z() / voxel)));
+}
+
+}  // namespace
+
+float depth_reliability(int views, float spread_m, double sigma_m) {
+  if (views < 2 || !(sigma_m > 0) || !std::isfinite(spread_m)) return 0.f;
+  const double count = std::min(1.0, (views - 1) / 3.0);
+  const double s = spread_m / sigma_m;
+  return float(count * std::exp(-0.5 * s * s));
+}
+
+std::optional<ImageU8> backdrop_mask(const ImageU8& color, double threshold, double* border_spread) {
+  if (color.empty() || color.width < 4 || color.height < 4) return std::nullopt;
+  const int c = color.channels;
+  std::vector<std::vector<int>> border{size_t(c)};
+  auto add = [&](int x, int y) {
+    for (int k = 0; k < c; ++k) border[size_t(k)].push_back(color.at(x, y, k));
+  };
+  for (int x = 0; x < color.width; ++x) add(x, 0), add(x, color.height - 1);
+  for (int y = 1; y + 1 < color.height; ++y) add(0, y), add(color.width - 1, y);
+  std::vector<int> bg(static_cast<size_t>(c), 0);
+  double spread = 0;
+  for (int k = 0; k < c; ++k) {
+    auto& v = border[size_t(k)];
+    std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+    bg[size_t(k)] = v[v.size() / 2];
+    std::vector<int> dev(v.size());
+    for (size_t i = 0; i < v.size(); ++i) dev[i] = std::abs(v[i] - bg[size_t(k)]);
+    std::nth_element(dev.begin(), dev.begin() + dev.size() / 2, dev.end());
+    spread = std::max(spread, 1.4826 * dev[dev.size() / 2]);
+  }
+  if (border_spread) *border_spread = spread;
+  if (spread > 12) return std::nullopt;  // not a backdrop
+  const double thr = threshold > 0 ? threshold : std::max(20.0, 6 * spread);
+  ImageU8 mask(color.width, color.height, 1, 0);
+  for (int y = 0; y < color.height; ++y)
+    for (int x = 0; x < color.width; ++x)
+      for (int k = 0; k < c; ++k)
+        if (std::abs(color.at(x, y, k) - bg[size_t(k)]) > thr) {
+          mask.at(x, y) = 255;
+          break;
+        }
+  return mask;
+}
+
+struct SparseVolume::Impl {
+  double voxel, tau;
+  std::optional<Eigen::AlignedBox3d> crop;
+  TsdfGrid::Ptr tsdf;
+  openvdb::MaskGrid::Ptr hull;   // hull voxels (after depth tests)
+  openvdb::MaskGrid::Ptr fuzzy;  // hull voxels without a depth surface
+  bool hull_only = false;        // no depth views were given to the hull
+  FusionStats stats;
+
+  bool in_crop(const Eigen::Vector3d& p) const { return !crop || crop->contains(p); }
+  Eigen::Vector3d centre(const Coord& c) const { return Eigen::Vector3d(c.x(), c.y(), c.z()) * voxel; }
+};
+
+SparseVolume::SparseVolume(double voxel_m, double truncation_m, std::optional<Eigen::AlignedBox3d> crop)
+    : impl_(std::make_unique<Impl>()) {
+  vdb_init();
+  impl_->voxel = voxel_m;
+  impl_->tau = std::max(truncation_m, voxel_m);
+  impl_->crop = crop;
+  impl_->tsdf = TsdfGrid::create(openvdb::Vec3s(0.f));
+  impl_->tsdf->setTransform(openvdb::math::Transform::createLinearTransform(voxel_m));
+}
+
+SparseVolume::~SparseVolume() = default;
+double SparseVolume::voxel() const { return impl_->voxel; }
+double SparseVolume::truncation() const { return impl_->tau; }
+const FusionStats& SparseVolume::fusion_stats() const { return impl_->stats; }
+
+void SparseVolume::integrate(const DepthObservation& v, int threads) {
+  Impl& m = *impl_;
+  ++m.stats.views;
+  if (!v.depth || v.depth->empty()) {
+    ++m.stats.views_without_depth;
+    return;
+  }
+  const ImageU16& depth = *v.depth;
+  // 1. The voxels holding a measured point, dilated by the truncation band.
+  auto touched = openvdb::MaskGrid::create(false);
+  {
+    auto acc = touched->getAccessor();
+    size_t used = 0;
+    for (int y = 0; y < depth.height; ++y)
+      for (int x = 0; x < depth.width; ++x) {
+        const uint16_t d = depth.data[size_t(y) * depth.width + x];
+        if (d == 0) continue;
+        auto pc = v.intrinsics.unproject({double(x), double(y)}, d * v.unit_m);
+        if (!pc) continue;
+        const Eigen::Vector3d pw = v.world_from_camera * *pc;
+        if (!m.in_crop(pw)) {
+          ++m.stats.samples_outside_crop;
+          continue;
+        }
+        acc.setValueOn(coord_of(pw, m.voxel));
+        ++used;
+      }
+    m.stats.depth_samples += used;
+    if (used == 0) {
+      ++m.stats.views_without_depth;
+      return;
+    }
+  }
+  const int band = int(std::ceil(m.tau / m.voxel));
+  openvdb::tools::dilateActiveValues(touched->tree(), band, openvdb::tools::NN_FACE_EDGE_VERTEX,
+                                     openvdb::tools::IGNORE_TILES);
+  m.tsdf->tree().topologyUnion(touched->tree());
+
+  // 2. Projective update of every touched voxel, leaf nodes in parallel (each
+  //    leaf's voxels are written by one task only).
+  const Eigen::Isometry3d cam_from_world = v.world_from_camera.inverse();
+  openvdb::tree::LeafManager<openvdb::MaskTree> leaves(touched->tree());
+  std::atomic<size_t> updates{0};
+  in_arena(threads, [&] {
+    tbb::parallel_for(leaves.leafRange(), [&](const auto& range) {
+      size_t local = 0;
+      for (auto leaf = range.begin(); leaf; ++leaf) {
+        auto* dst = m.tsdf->tree().probeLeaf(leaf->origin());
+        if (!dst) continue;
+        for (auto it = leaf->cbeginValueOn(); it; ++it) {
+          const Coord c = it.getCoord();
+          const Eigen::Vector3d pw = m.centre(c);
+          if (!m.in_crop(pw)) continue;
+          const Eigen::Vector3d pc = cam_from_world * pw;
+          auto px = v.intrinsics.project(pc);
+          if (!px) continue;
+          const int x = int(std::lround(px->x())), y = int(std::lround(px->y()));
+          if (x < 0 || y < 0 || x >= depth.width || y >= depth.height) continue;
+          const uint16_t d = depth.data[size_t(y) * depth.width + x];
+          if (d == 0) continue;
+          const double sdf = d * v.unit_m - pc.z();
+          if (sdf < -m.tau) continue;  // behind the surface: unknown
+          const float s = float(std::min(sdf, m.tau));
+          openvdb::Vec3s val = dst->getValue(c);
+          const float n = val[1] + 1.f;
+          const float delta = s - val[0];
+          val[0] += delta / n;
+          val[2] += delta * (s - val[0]);
+          val[1] = n;
+          dst->setValueOnly(c, val);
+          ++local;
+        }
+      }
+      updates += local;
+    });
+  });
+  m.stats.voxel_updates += updates.load();
+}
+
+HullStats SparseVolume::carve_hull(const std::vector<SilhouetteObservation>& views,
+                                   const std::vector<DepthObservation>& depth, const Eigen::AlignedBox3d& box,
+                                   int threads) {
+  Impl& m = *impl_;
+  HullStats hs;
+  m.hull_only = depth.empty();
+  struct ViewData {
+    MaskTable table;
+    Eigen::Isometry3d cam_from_world;
+    const Intrinsics* K;
+  };
+  std::vector<ViewData> vd;
+  vd.reserve(views.size());
+  for (const auto& v : views)
+    if (v.mask && !v.mask->empty()) vd.push_back({MaskTable(*v.mask), v.world_from_camera.inverse(), &v.intrinsics});
+
+  // Coarse to fine: a cell of level k spans 2^k voxels per axis.
+  const double extent = box.sizes().maxCoeff();
+  int top = 0;
+  while (extent / (m.voxel * double(1 << top)) > 8 && top < 16) ++top;
+  hs.levels = top + 1;
+  const Coord lo = coord_of(box.min(), m.voxel), hi = coord_of(box.max(), m.voxel);
+  std::vector<Coord> cells;  // in units of the level's cell
+  {
+    const int s = 1 << top;
+    auto floordiv = [](int a, int b) { return a >= 0 ? a / b : -((-a + b - 1) / b); };
+    for (int x = floordiv(lo.x(), s); x <= floordiv(hi.x(), s); ++x)
+      for (int y = floordiv(lo.y(), s); y <= floordiv(hi.y(), s); ++y)
+        for (int z = floordiv(lo.z(), s); z <= floordiv(hi.z(), s); ++z) cells.emplace_back(x, y, z);
+  }
+  for (int level = top; level >= 0; --level) {
+    const int s = 1 << level;
+    const double size = m.voxel * s;
+    const double radius = 0.5 * std::sqrt(3.0) * size;
+    std::vector<uint8_t> keep(cells.size(), 1);
+    in_arena(threads, [&] {
+      tbb::parallel_for(tbb::blocked_range<size_t>(0, cells.size()), [&](const auto& r) {
+        for (size_t i = r.begin(); i != r.end(); ++i) {
+          const Coord& c = cells[i];
+          // Centre of the cell spanning voxels [c*s, c*s + s - 1].
+          const Eigen::Vector3d centre =
+              (Eigen::Vector3d(c.x(), c.y(), c.z()) * s + Eigen::Vector3d::Constant(0.5 * (s - 1))) * m.voxel;
+          for (const auto& v : vd) {
+            auto win = footprint(*v.K, v.cam_from_world * centre, radius);
+            if (!win) continue;  // the camera is at the cell: no verdict
+            if (v.table.count(win->x0, win->y0, win->x1, win->y1) == 0) {
+              keep[i] = 0;
+              break;
+            }
+          }
+        }
+      });
+    });
+    hs.cells_tested += cells.size();
+    std::vector<Coord> next;
+    for (size_t i = 0; i < cells.size(); ++i) {
+      if (!keep[i]) continue;
+      if (level == 0) {
+        next.push_back(cells[i]);
+        continue;
+      }
+      for (int k = 0; k < 8; ++k)
+        next.emplace_back(cells[i].x() * 2 + (k & 1), cells[i].y() * 2 + ((k >> 1) & 1), cells[i].z() * 2 + ((k >> 2) & 1));
+    }
+    cells.swap(next);
+  }
+  // Crop to the box at the finest level.
+  std::erase_if(cells, [&](const Coord& c) { return !box.contains(m.centre(c)) || !m.in_crop(m.centre(c)); });
+  hs.hull_voxels = cells.size();
+
+  // Depth tests on the finest voxels.
+  enum Verdict : uint8_t { kKeep, kFree, kSolid, kObserved };
+  std::vector<uint8_t> verdict(cells.size(), kKeep);
+  if (!depth.empty()) {
+    const double radius = 0.5 * std::sqrt(3.0) * m.voxel;
+    // Free: in front of every depth sample of the footprint by the truncation
+    // distance. Hidden: behind all of them by the voxel's diameter.
+    const double margin = std::max(m.tau, radius), hidden = 2 * radius;
+    std::vector<Eigen::Isometry3d> cam_from_world;
+    for (const auto& d : depth) cam_from_world.push_back(d.world_from_camera.inverse());
+    auto acc_proto = m.tsdf->getConstAccessor();
+    in_arena(threads, [&] {
+      tbb::parallel_for(tbb::blocked_range<size_t>(0, cells.size()), [&](const auto& r) {
+        auto acc = m.tsdf->getConstAccessor();
+        for (size_t i = r.begin(); i != r.end(); ++i) {
+          openvdb::Vec3s val;
+          if (acc.probeValue(cells[i], val) && val[1] > 0) {
+            verdict[i] = kObserved;
+            continue;
+          }
+          const Eigen::Vector3d centre = m.centre(cells[i]);
+          int behind = 0, seen = 0;
+          bool free = false;
+          for (size_t k = 0; k < depth.size() && !free; ++k) {
+            const ImageU16* im = depth[k].depth;
+            if (!im || im->empty()) continue;
+            const Eigen::Vector3d pc = cam_from_world[k] * centre;
+            auto win = footprint(depth[k].intrinsics, pc, radius);
+            if (!win || !win->inside(im->width, im->height)) continue;
+            uint16_t lo_d = 0xffff, hi_d = 0;
+            bool hole = false;
+            for (int y = win->y0; y <= win->y1 && !hole; ++y)
+              for (int x = win->x0; x <= win->x1; ++x) {
+                const uint16_t d = im->data[size_t(y) * im->width + x];
+                if (d == 0) {
+                  hole = true;
+                  break;
+                }
+                lo_d = std::min(lo_d, d), hi_d = std::max(hi_d, d);
+              }
+            if (hole) continue;  // no verdict from this view
+            ++seen;
+            if (pc.z() + margin < lo_d * depth[k].unit_m) free = true;
+            else if (pc.z() - hidden > hi_d * depth[k].unit_m) ++behind;
+          }
+          verdict[i] = free ? kFree : (seen > 0 && behind == seen) ? kSolid : kKeep;
+
+        }
+      });
+    });
+    (void)acc_proto;
+  }
+  m.hull = openvdb::MaskGrid::create(false);
+  m.fuzzy = openvdb::MaskGrid::create(false);
+  m.hull->setTransform(m.tsdf->transform().copy());
+  m.fuzzy->setTransform(m.tsdf->transform().copy());
+  auto hacc = m.hull->getAccessor();
+  auto facc = m.fuzzy->getAccessor();
+  for (size_t i = 0; i < cells.size(); ++i) {
+    switch (verdict[i]) {
+      case kFree: ++hs.carved_by_depth; break;
+      case kSolid: ++hs.solid_by_depth; break;
+      case kObserved: hacc.setValueOn(cells[i]); break;
+      default: hacc.setValueOn(cells[i]); facc.setValueOn(cells[i]);
+    }
+  }
+  if (m.hull_only) {
+    // Without depth the evidence is the hull's boundary: voxels beside empty space.
+    m.fuzzy->clear();
+    for (const Coord& c : cells) {
+      bool boundary = false;
+      for (int a = 0; a < 3 && !boundary; ++a)
+        for (int sgn : {-1, 1}) {
+          Coord n = c;
+          n[a] += sgn;
+          if (!hacc.isValueOn(n)) {
+            boundary = true;
+            break;
+          }
+        }
+      if (boundary) facc.setValueOn(c);
+    }
+  }
+  hs.fuzzy_voxels = m.fuzzy->activeVoxelCount();
+  return hs;
+}
+
+std::vector<EvidenceVoxel> SparseVolume::evidence(double reliability_sigma_m) const {
+  const Impl& m = *impl_;
+  std::vector<EvidenceVoxel> out;
+  auto acc = m.tsdf->getConstAccessor();
+  auto value = [&](const Coord& c, openvdb::Vec3s& v) { return acc.probeValue(c, v) && v[1] > 0; };
+  for (auto it = m.tsdf->cbeginValueOn(); it; ++it) {
+    const openvdb::Vec3s v = *it;
+    if (v[1] <= 0 || !it.isVoxelValue()) continue;
+    const Coord c = it.getCoord();
+    bool surface = false;
+    Eigen::Vector3f grad = Eigen::Vector3f::Zero();
+    for (int a = 0; a < 3; ++a) {
+      openvdb::Vec3s nb[2];
+      bool has[2];
+      for (int k = 0; k < 2; ++k) {
+        Coord n = c;
+        n[a] += k ? 1 : -1;
+        has[k] = value(n, nb[k]);
+        if (has[k] && ((nb[k][0] < 0) != (v[0] < 0)) && std::abs(nb[k][0] - v[0]) <= 2 * m.voxel &&
+            (std::abs(v[0]) < std::abs(nb[k][0]) || (std::abs(v[0]) == std::abs(nb[k][0]) && k == 1)))
+          surface = true;
+      }
+      if (has[0] && has[1]) grad[a] = (nb[1][0] - nb[0][0]) / 2;
+      else if (has[1]) grad[a] = nb[1][0] - v[0];
+      else if (has[0]) grad[a] = v[0] - nb[0][0];
+    }
+    if (!surface) continue;
+    EvidenceVoxel e;
+    e.ijk = Eigen::Vector3i(c.x(), c.y(), c.z());
+    e.centre = m.centre(c).cast<float>();
+    if (grad.norm() > 1e-12f) e.normal = grad.normalized();
+    e.sdf_m = v[0];
+    e.views = int(v[1]);
+    e.spread_m = float(std::sqrt(std::max(0.f, v[2]) / v[1]));
+    e.reliability = depth_reliability(e.views, e.spread_m, reliability_sigma_m);
+    out.push_back(e);
+  }
+  if (m.fuzzy) {
+    auto hacc = m.hull->getConstAccessor();
+    for (auto it = m.fuzzy->cbeginValueOn(); it; ++it) {
+      const Coord c = it.getCoord();
+      Eigen::Vector3f outward = Eigen::Vector3f::Zero();
+      for (int dx = -1; dx <= 1; ++dx)
+        for (int dy = -1; dy <= 1; ++dy)
+          for (int dz = -1; dz <= 1; ++dz)
+            if ((dx || dy || dz) && !hacc.isValueOn(c.offsetBy(dx, dy, dz)))
+              outward += Eigen::Vector3f(float(dx), float(dy), float(dz)).normalized();
+      EvidenceVoxel e;
+      e.ijk = Eigen::Vector3i(c.x(), c.y(), c.z());
+      e.centre = m.centre(c).cast<float>();
+      if (outward.norm() > 0.5f) e.normal = outward.normalized();
+      e.fuzzy = true;
+      out.push_back(e);
+    }
+  }
+  return out;
+}
+
+Mesh SparseVolume::surface_mesh() const {
+  const Impl& m = *impl_;
+  Mesh mesh;
+  auto append = [&](const openvdb::tools::VolumeToMesh& mesher) {
+    const int base = int(mesh.vertices.size());
+    for (size_t i = 0; i < mesher.pointListSize(); ++i) {
+      const auto& p = mesher.pointList()[i];
+      mesh.vertices.emplace_back(p.x(), p.y(), p.z());
+    }
+    for (size_t n = 0; n < mesher.polygonPoolListSize(); ++n) {
+      const auto& pool = mesher.polygonPoolList()[n];
+      for (size_t i = 0; i < pool.numQuads(); ++i) {
+        const auto& q = pool.quad(i);
+        mesh.faces.emplace_back(base + int(q[0]), base + int(q[1]), base + int(q[2]));
+        mesh.faces.emplace_back(base + int(q[0]), base + int(q[2]), base + int(q[3]));
+      }
+      for (size_t i = 0; i < pool.numTriangles(); ++i) {
+        const auto& t = pool.triangle(i);
+        mesh.faces.emplace_back(base + int(t[0]), base + int(t[1]), base + int(t[2]));
+      }
+    }
+  };
+  // Depth surface: the fused distances where observed, meshed only around
+  // surface voxels (the band's far side borders unobserved space and must not
+  // become a wall).
+  auto sdf = openvdb::FloatGrid::create(float(m.tau));
+  sdf->setTransform(m.tsdf->transform().copy());
+  sdf->setGridClass(openvdb::GRID_LEVEL_SET);
+  auto mask = openvdb::BoolGrid::create(false);
+  mask->setTransform(m.tsdf->transform().copy());
+  {
+    auto sacc = sdf->getAccessor();
+    for (auto it = m.tsdf->cbeginValueOn(); it; ++it)
+      if ((*it)[1] > 0 && it.isVoxelValue()) sacc.setValue(it.getCoord(), (*it)[0]);
+    auto macc = mask->getAccessor();
+    for (const auto& e : evidence(1.0))
+      if (!e.fuzzy) macc.setValueOn(Coord(e.ijk.x(), e.ijk.y(), e.ijk.z()), true);
+  }
+  if (mask->activeVoxelCount() > 0) {
+    openvdb::tools::dilateActiveValues(mask->tree(), 1, openvdb::tools::NN_FACE_EDGE_VERTEX,
+                                       openvdb::tools::IGNORE_TILES);
+    openvdb::tools::VolumeToMesh mesher(0.0, 0.0);
+    mesher.setSurfaceMask(mask);
+    mesher(*sdf);
+    append(mesher);
+  }
+  // Fuzzy / hull voxels: the closed surface around them.
+  if (m.fuzzy && m.fuzzy->activeVoxelCount() > 0) {
+    const auto& source = m.hull_only ? m.hull : m.fuzzy;
+    auto ls = openvdb::tools::topologyToLevelSet(*source, 2, 0, 0, 0);
+    openvdb::tools::VolumeToMesh mesher(0.0, 0.0);
+    mesher(*ls);
+    append(mesher);
+  }
+  return mesh;
+}
+
+size_t SparseVolume::active_voxels() const {
+  size_t n = impl_->tsdf->activeVoxelCount();
+  if (impl_->hull) n += impl_->hull->activeVoxelCount();
+  return n;
+}
+
+size_t SparseVolume::memory_bytes() const {
+  size_t n = impl_->tsdf->memUsage();
+  if (impl_->hull) n += impl_->hull->memUsage() + impl_->fuzzy->memUsage();
+  return n;
+}
+
+}  // namespace s2r

@@ -1,0 +1,123 @@
+// Fusion of registered views into a sparse volume (DESIGN.md section 6.1).
+// OpenVDB is confined to fusion.cpp.
+//
+// Depth: a truncated signed distance per voxel (projective, z along the depth
+// camera's axis, truncated at +tau, not updated behind -tau), with the number
+// of views that observed it and the spread of their signed distances (Welford),
+// from which the voxel's reliability follows (agreement between views).
+//
+// Silhouettes: a visual hull carved coarse to fine from foreground masks (each
+// cell's projected footprint must touch the foreground in every view that sees
+// it whole). With depth as well, hull voxels that depth proves empty (in front
+// of a measurement by more than tau over the whole footprint) or solid (behind
+// one) are removed; what is left where depth has no sample is "fuzzy" evidence:
+// thin strands and hair that the depth camera loses.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include "core/camera_model.h"
+#include "core/image.h"
+#include "core/mesh.h"
+
+namespace s2r {
+
+struct DepthObservation {
+  const ImageU16* depth = nullptr;  // 0 = no measurement
+  double unit_m = 0.001;
+  Intrinsics intrinsics;           // depth camera
+  Eigen::Isometry3d world_from_camera = Eigen::Isometry3d::Identity();  // depth camera
+};
+
+struct SilhouetteObservation {
+  const ImageU8* mask = nullptr;  // 1 channel, non-zero = foreground
+  Intrinsics intrinsics;
+  Eigen::Isometry3d world_from_camera = Eigen::Isometry3d::Identity();
+};
+
+// What a voxel with evidence holds once fusion is done.
+struct EvidenceVoxel {
+  Eigen::Vector3i ijk;         // centre = ijk * voxel
+  Eigen::Vector3f centre;      // world, metres
+  Eigen::Vector3f normal = Eigen::Vector3f::Zero();  // outward unit, or 0 when unknown
+  float sdf_m = 0;             // fused signed distance (0 for hull evidence)
+  float spread_m = 0;          // standard deviation of the views' signed distances
+  int views = 0;               // views whose depth observed it
+  bool fuzzy = false;          // silhouette evidence without a depth surface
+  float reliability = 0;       // 0..1
+};
+
+struct FusionStats {
+  size_t depth_samples = 0;     // depth pixels used
+  size_t voxel_updates = 0;     // projective updates
+  size_t views = 0;
+  size_t views_without_depth = 0;
+  size_t samples_outside_crop = 0;
+};
+
+struct HullStats {
+  size_t cells_tested = 0;      // all levels
+  size_t hull_voxels = 0;       // finest level, inside every silhouette
+  size_t carved_by_depth = 0;   // free space in front of depth
+  size_t solid_by_depth = 0;    // behind depth in every view that sees it
+  size_t fuzzy_voxels = 0;
+  int levels = 0;
+};
+
+class SparseVolume {
+ public:
+  // truncation_m: tau (>= voxel). crop: voxels outside are never created.
+  SparseVolume(double voxel_m, double truncation_m, std::optional<Eigen::AlignedBox3d> crop = std::nullopt);
+  ~SparseVolume();
+  SparseVolume(const SparseVolume&) = delete;
+  SparseVolume& operator=(const SparseVolume&) = delete;
+
+  double voxel() const;
+  double truncation() const;
+
+  // Projective TSDF update from one depth image (parallel over leaf nodes).
+  void integrate(const DepthObservation& view, int threads = 0);
+  const FusionStats& fusion_stats() const;
+
+  // Visual hull inside `box`, refined to the voxel size; with `depth` views the
+  // hull is intersected with what depth leaves possible (see above). Replaces
+  // any hull carved before.
+  HullStats carve_hull(const std::vector<SilhouetteObservation>& views,
+                       const std::vector<DepthObservation>& depth, const Eigen::AlignedBox3d& box,
+                       int threads = 0);
+
+  // Depth surface voxels (a sign change to a 6-neighbour observed on both sides,
+  // the smaller |sdf| of the two), then fuzzy hull voxels (or, with no depth at
+  // all, the hull's boundary voxels). `reliability_sigma_m`: the spread at which
+  // agreement counts as weak (reliability exp(-1/2) per view count factor).
+  std::vector<EvidenceVoxel> evidence(double reliability_sigma_m) const;
+
+  // The fused surface as triangles (OpenVDB volume-to-mesh at sdf = 0, limited
+  // to observed surface voxels) plus the fuzzy/hull voxels' closed hull.
+  Mesh surface_mesh() const;
+
+  size_t active_voxels() const;   // all grids
+  size_t memory_bytes() const;    // all grids
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+// Reliability of a depth voxel from its agreement between views: 0 with fewer
+// than two views, growing to 1 with four or more, times exp(-spread^2 / (2 sigma^2)).
+float depth_reliability(int views, float spread_m, double sigma_m);
+
+// Foreground masks for object-centre sessions: the background colour is the
+// median of the image border; a pixel is foreground when a channel differs
+// from it by more than `threshold` levels (0 = from the border's spread).
+// Returns nothing when the border is not uniform enough to be a backdrop.
+std::optional<ImageU8> backdrop_mask(const ImageU8& color, double threshold = 0, double* border_spread = nullptr);
+
+}  // namespace s2r

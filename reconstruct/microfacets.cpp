@@ -1,0 +1,183 @@
+#include "reconstruct/microfacets.h"
+
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+#include <tuple>
+#include <unordered_map>
+
+#include <Eigen/Eigenvalues>
+
+#include "core/parallel.h"
+
+namespace s2r {
+
+double texel_error_bound(double w, double delta_rad) {
+  return 0.5 * w * std::sin(std::clamp(delta_rad, 0.0, std::numbers::pi / 2));
+}
+
+double voxel_for_error(double target_px, double focal_px, double distance_m, double delta_rad) {
+  // f (w/2) sin(delta) / z <= target  =>  w <= 2 target z / (f sin(delta)).
+  const double s = std::sin(std::clamp(delta_rad, 1e-6, std::numbers::pi / 2));
+  return 2 * target_px * distance_m / (focal_px * s);
+}
+
+CameraSpacing camera_spacing(const std::vector<Eigen::Isometry3d>& cams, const Eigen::Vector3d& centre) {
+  CameraSpacing cs;
+  if (cams.empty()) return cs;
+  std::vector<Eigen::Vector3d> dirs;
+  std::vector<double> dist, gaps;
+  for (const auto& c : cams) {
+    const Eigen::Vector3d d = c.translation() - centre;
+    dist.push_back(d.norm());
+    dirs.push_back(d.norm() > 0 ? Eigen::Vector3d(d.normalized()) : Eigen::Vector3d::UnitZ());
+  }
+  for (size_t i = 0; i < dirs.size(); ++i) {
+    double best = std::numbers::pi;  // a lone camera: any view may be opposite
+    for (size_t j = 0; j < dirs.size(); ++j)
+      if (i != j) best = std::min(best, std::atan2(dirs[i].cross(dirs[j]).norm(), dirs[i].dot(dirs[j])));
+    gaps.push_back(best);
+  }
+  auto median = [](std::vector<double> v) {
+    std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+    return v[v.size() / 2];
+  };
+  cs.max_gap_rad = *std::max_element(gaps.begin(), gaps.end());
+  cs.median_gap_rad = median(gaps);
+  cs.median_distance_m = median(dist);
+  return cs;
+}
+
+Eigen::Vector3d optical_axes_centre(const std::vector<Eigen::Isometry3d>& cams) {
+  Eigen::Matrix3d A = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d b = Eigen::Vector3d::Zero(), mean_c = Eigen::Vector3d::Zero(), mean_d = Eigen::Vector3d::Zero();
+  for (const auto& c : cams) {
+    const Eigen::Vector3d o = c.translation(), d = c.linear().col(2).normalized();
+    const Eigen::Matrix3d P = Eigen::Matrix3d::Identity() - d * d.transpose();
+    A += P;
+    b += P * o;
+    mean_c += o;
+    mean_d += d;
+  }
+  if (cams.empty()) return Eigen::Vector3d::Zero();
+  mean_c /= double(cams.size());
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(A);
+  if (es.eigenvalues()(0) > 1e-3 * es.eigenvalues()(2)) return A.ldlt().solve(b);
+  return mean_c + mean_d.normalized();  // parallel axes: one metre ahead
+}
+
+FacetStats build_facets(const std::vector<EvidenceVoxel>& ev, const std::vector<FacetCamera>& cameras,
+                        const FacetOptions& o, std::vector<FacetRecord>& facets, std::vector<uint32_t>& facet_cameras) {
+  FacetStats st;
+  st.evidence = ev.size();
+  struct Draft {
+    Eigen::Vector3f centre, normal;
+    float size, reliability;
+    bool fuzzy;
+  };
+  std::vector<Draft> drafts;
+  drafts.reserve(ev.size());
+  auto weak = [&](const EvidenceVoxel& e) { return e.fuzzy || e.reliability < o.reliable; };
+  // Parents (2x2x2 voxels) with a reliable member keep their voxels fine.
+  auto key = [](const Eigen::Vector3i& ijk) {
+    const Eigen::Vector3i p(ijk.x() >> 1, ijk.y() >> 1, ijk.z() >> 1);
+    return (uint64_t(uint32_t(p.x()) & 0x1fffff) << 42) | (uint64_t(uint32_t(p.y()) & 0x1fffff) << 21) |
+           uint64_t(uint32_t(p.z()) & 0x1fffff);
+  };
+  std::unordered_map<uint64_t, bool> parent_reliable;
+  if (o.per_region)
+    for (const auto& e : ev) parent_reliable[key(e.ijk)] |= !weak(e);
+  struct Merge {
+    Eigen::Vector3f sum_c = Eigen::Vector3f::Zero(), sum_n = Eigen::Vector3f::Zero();
+    float sum_r = 0;
+    int n = 0;
+    bool fuzzy = true;
+  };
+  std::unordered_map<uint64_t, Merge> merges;
+  for (const auto& e : ev) {
+    if (o.per_region && !parent_reliable[key(e.ijk)]) {
+      Merge& m = merges[key(e.ijk)];
+      m.sum_c += e.centre, m.sum_n += e.normal, m.sum_r += e.reliability, ++m.n;
+      m.fuzzy = m.fuzzy && e.fuzzy;
+      continue;
+    }
+    drafts.push_back({e.centre, e.normal, float(o.voxel_m), e.reliability, e.fuzzy});
+    ++st.fine;
+  }
+  for (const auto& [k, m] : merges) {
+    const Eigen::Vector3f n = m.sum_n.norm() > 1e-6f ? Eigen::Vector3f(m.sum_n.normalized()) : Eigen::Vector3f::Zero();
+    drafts.push_back({m.sum_c / float(m.n), n, float(2 * o.voxel_m), m.sum_r / float(m.n), m.fuzzy});
+    ++st.coarse;
+  }
+  // Deterministic order (the hash map's is not): by position.
+  std::sort(drafts.begin(), drafts.end(), [](const Draft& a, const Draft& b) {
+    return std::tie(a.centre.x(), a.centre.y(), a.centre.z(), a.size) < std::tie(b.centre.x(), b.centre.y(), b.centre.z(), b.size);
+  });
+
+  // Visibility, in parallel over chunks of facets.
+  struct CamXf {
+    Eigen::Matrix3f R;
+    Eigen::Vector3f t;
+  };
+  std::vector<CamXf> xf;
+  for (const auto& c : cameras) {
+    const Eigen::Isometry3d inv = c.world_from_camera.inverse();
+    xf.push_back({inv.linear().cast<float>(), inv.translation().cast<float>()});
+  }
+  std::vector<std::vector<uint32_t>> seen(drafts.size());
+  std::vector<size_t> occluded(drafts.size(), 0), outside(drafts.size(), 0);
+  const int chunk = 4096;
+  const int chunks = int((drafts.size() + chunk - 1) / chunk);
+  parallel_for(chunks, worker_count(o.threads), [&](int ci) {
+    const size_t end = std::min(drafts.size(), size_t(ci + 1) * chunk);
+    for (size_t i = size_t(ci) * chunk; i < end; ++i) {
+      const Draft& d = drafts[i];
+      const float tol = 0.5f * std::sqrt(3.f) * d.size;
+      for (size_t c = 0; c < cameras.size(); ++c) {
+        const Eigen::Vector3f pc = xf[c].R * d.centre + xf[c].t;
+        auto px = cameras[c].intrinsics.project(pc.cast<double>());
+        if (!px || !cameras[c].intrinsics.contains(*px)) {
+          ++outside[i];
+          continue;
+        }
+        const ImageF* D = cameras[c].distance;
+        if (D && !D->empty()) {
+          const int x = std::clamp(int(std::lround(px->x())), 0, D->width - 1);
+          const int y = std::clamp(int(std::lround(px->y())), 0, D->height - 1);
+          const float dd = D->data[size_t(y) * D->width + x];
+          if (dd > 0 && pc.norm() > dd + tol) {
+            ++occluded[i];
+            continue;
+          }
+        }
+        seen[i].push_back(uint32_t(c));
+      }
+    }
+  });
+  facets.clear();
+  facet_cameras.clear();
+  facets.reserve(drafts.size());
+  for (size_t i = 0; i < drafts.size(); ++i) {
+    const Draft& d = drafts[i];
+    if (seen[i].empty()) {
+      ++st.unseen;
+      if (!o.keep_unseen) continue;
+    }
+    FacetRecord r{};
+    for (int k = 0; k < 3; ++k) r.center[k] = d.centre[k], r.normal[k] = d.normal[k];
+    r.size = d.size;
+    r.reliability = std::clamp(d.reliability, 0.f, 1.f);
+    r.first_camera = uint32_t(facet_cameras.size());
+    r.camera_count = uint32_t(seen[i].size());
+    facet_cameras.insert(facet_cameras.end(), seen[i].begin(), seen[i].end());
+    facets.push_back(r);
+    st.fuzzy += d.fuzzy;
+    st.occluded += occluded[i];
+    st.outside_image += outside[i];
+  }
+  st.facets = facets.size();
+  st.camera_links = facet_cameras.size();
+  return st;
+}
+
+}  // namespace s2r

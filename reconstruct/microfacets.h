@@ -1,0 +1,77 @@
+// Microfacets (DESIGN.md section 6): one facet per voxel with evidence, its
+// size chosen per region from the reliability of the geometry, the cameras
+// that see it, and the error bound that ties facet size to camera spacing.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "core/camera_model.h"
+#include "core/image.h"
+#include "reconstruct/fusion.h"
+#include "reconstruct/model.h"
+
+namespace s2r {
+
+// --- The error bound -------------------------------------------------------
+// A texel seen by camera c at the true surface point P is drawn on the facet
+// billboard through the facet centre C, facing the view direction v. Along
+// the camera ray P + t c the billboard is met at t = ((C - P).v) / (c.v); the
+// texel moves on screen by |t| sin(alpha), alpha the angle between camera and
+// view directions. Depth clipping draws it only where |t| = |d - D| < w/2, so
+//     e <= (w/2) sin(alpha),  alpha <= delta = half the angular gap between
+// neighbouring cameras (the nearest camera is chosen). The seed's example (30
+// degree spacing, e < 0.13 w) is (w/2) sin 15 deg = 0.129 w. In pixels at
+// viewing distance z with focal length f: e_px = f e / z.
+double texel_error_bound(double w, double delta_rad);
+// Largest w whose bound stays under `target_px` on screen.
+double voxel_for_error(double target_px, double focal_px, double distance_m, double delta_rad);
+
+struct CameraSpacing {
+  double max_gap_rad = 0;       // the widest angle from a camera to its nearest neighbour, seen from `centre`
+  double median_gap_rad = 0;
+  double median_distance_m = 0;  // camera to centre
+};
+CameraSpacing camera_spacing(const std::vector<Eigen::Isometry3d>& world_from_camera, const Eigen::Vector3d& centre);
+
+// The point closest (least squares) to all cameras' optical axes: the object
+// on a turntable. Falls back to the cameras' centroid shifted along their mean
+// axis when the axes are (nearly) parallel.
+Eigen::Vector3d optical_axes_centre(const std::vector<Eigen::Isometry3d>& world_from_camera);
+
+// --- Facets ----------------------------------------------------------------
+struct FacetCamera {
+  Intrinsics intrinsics;
+  Eigen::Isometry3d world_from_camera = Eigen::Isometry3d::Identity();
+  const ImageF* distance = nullptr;  // per-camera depth: distance along the ray, 0 = miss
+};
+
+struct FacetOptions {
+  double voxel_m = 0;            // finest facet size w0 (the fusion voxel)
+  bool per_region = true;        // unreliable / fuzzy regions merge to 2 w0
+  double reliable = 0.5;         // reliability at or above which a voxel keeps w0
+  bool keep_unseen = false;      // keep facets no camera sees (nothing can texture them)
+  int threads = 0;
+};
+
+struct FacetStats {
+  size_t evidence = 0;           // voxels with evidence
+  size_t facets = 0;
+  size_t fine = 0, coarse = 0;   // facets of w0 and of 2 w0
+  size_t fuzzy = 0;              // facets from silhouette evidence
+  size_t unseen = 0;             // no camera sees the facet: left out unless keep_unseen
+  size_t camera_links = 0;
+  size_t occluded = 0;           // (facet, camera) pairs inside the image but hidden
+  size_t outside_image = 0;      // (facet, camera) pairs out of the image
+};
+
+// Facet records and their camera lists. A camera sees a facet when its
+// centre projects into the image and lies no further than the camera's depth
+// there plus half the facet's diagonal (sqrt(3)/2 w).
+FacetStats build_facets(const std::vector<EvidenceVoxel>& evidence, const std::vector<FacetCamera>& cameras,
+                        const FacetOptions& options, std::vector<FacetRecord>& facets,
+                        std::vector<uint32_t>& facet_cameras);
+
+}  // namespace s2r

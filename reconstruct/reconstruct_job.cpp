@@ -1,0 +1,442 @@
+#include "reconstruct/reconstruct_job.h"
+
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+#include <set>
+
+#include <spdlog/fmt/fmt.h>
+
+#include "calibrate/calibration.h"
+#include "capture/synth_rig.h"
+#include "core/image_io.h"
+#include "core/parallel.h"
+#include "core/progress.h"
+#include "reconstruct/camera_depth.h"
+#include "reconstruct/fusion.h"
+#include "reconstruct/microfacets.h"
+#include "reconstruct/model.h"
+#include "reconstruct/poses.h"
+#include "reconstruct/rig_eval.h"
+
+namespace s2r {
+namespace fs = std::filesystem;
+
+Result<FramePoses> resolve_frame_poses(const Session& s, const fs::path& poses_file, const fs::path& calibration_file) {
+  FramePoses fp;
+  fp.world_from_camera.resize(s.frames.size());
+  if (!poses_file.empty()) {
+    auto p = load_poses(poses_file);
+    if (!p) return std::unexpected(p.error());
+    for (const auto& f : p->frames) {
+      if (f.index < 0 || size_t(f.index) >= s.frames.size())
+        return fail("'" + poses_file.string() + "': frame " + std::to_string(f.index) + " is not in the session (" +
+                    std::to_string(s.frames.size()) + " frames)");
+      if (!f.flagged) fp.world_from_camera[size_t(f.index)] = f.world_from_camera;
+    }
+    fp.source = "poses file " + poses_file.filename().string();
+    return fp;
+  }
+  bool given = !s.frames.empty();
+  for (const auto& f : s.frames) given = given && f.world_from_camera.has_value();
+  if (given) {
+    for (size_t i = 0; i < s.frames.size(); ++i) fp.world_from_camera[i] = s.frames[i].world_from_camera;
+    fp.source = "given";
+    return fp;
+  }
+  if (!calibration_file.empty()) {
+    auto c = load_calibration(calibration_file);
+    if (!c) return std::unexpected(c.error());
+    if (!c->axis) return fail("'" + calibration_file.string() + "' has no turntable axis: run s2r calibrate axis, or give --poses");
+    for (size_t i = 0; i < s.frames.size(); ++i)
+      fp.world_from_camera[i] = c->world_from_camera_at(s.frames[i].table_angle_reported_deg, s.layout);
+    fp.source = "table angles about the calibrated axis";
+    return fp;
+  }
+  if (auto truth = load_synth_truth(s.root); truth && truth->world_from_camera.size() == s.frames.size()) {
+    for (size_t i = 0; i < s.frames.size(); ++i) fp.world_from_camera[i] = truth->world_from_camera[i];
+    fp.source = "ground truth (synthetic rig)";
+    return fp;
+  }
+  return fail("session '" + s.root.string() +
+              "' has no camera poses: give --poses (s2r register) or --calibration with a turntable axis");
+}
+
+namespace {
+
+struct Timer {
+  Report& rep;
+  Stopwatch clock;
+  void lap(const std::string& step) {
+    rep.counts["seconds_" + step] = clock.seconds();
+    clock = Stopwatch();
+  }
+};
+
+}  // namespace
+
+Result<Report> run_reconstruct_job(const ReconstructJob& job) {
+  Stopwatch total;
+  Report rep;
+  rep.stage = "reconstruct";
+  Timer timer{rep, {}};
+  if (!(job.target_error_px > 0)) return fail("--target-error must be > 0 pixels");
+  if (!(job.truncation_voxels >= 1)) return fail("--truncation must be at least 1 voxel");
+  if (job.voxel_m && !(*job.voxel_m > 0 && std::isfinite(*job.voxel_m))) return fail("--voxel must be 'auto' or a positive number of metres");
+  static const std::set<std::string> modes = {"auto", "depth", "hull", "both"};
+  if (!modes.count(job.geometry)) return fail("--geometry must be auto, depth, hull or both (got '" + job.geometry + "')");
+
+  auto session = load_session(job.session);
+  if (!session) return std::unexpected(session.error());
+  const Session& s = *session;
+  auto poses = resolve_frame_poses(s, job.poses, job.calibration);
+  if (!poses) return std::unexpected(poses.error());
+  std::optional<Calibration> cal;
+  if (!job.calibration.empty()) {
+    auto c = load_calibration(job.calibration);
+    if (!c) return std::unexpected(c.error());
+    cal = *c;
+  }
+  std::set<int> held(job.holdout.begin(), job.holdout.end());
+  for (int h : held)
+    if (h < 0 || size_t(h) >= s.frames.size())
+      return fail("--holdout " + std::to_string(h) + ": the session has frames 0.." + std::to_string(int(s.frames.size()) - 1));
+
+  // Depth sensor model.
+  std::optional<Intrinsics> depth_K;
+  Eigen::Isometry3d color_from_depth = Eigen::Isometry3d::Identity();
+  double unit = 0.001;
+  if (s.depth) depth_K = s.depth->intrinsics, color_from_depth = s.depth->color_from_depth, unit = s.depth->unit_m;
+  if (cal && cal->depth) depth_K = cal->depth->intrinsics;
+  if (cal && cal->color_from_depth) color_from_depth = *cal->color_from_depth;
+
+  // Views: frames with a pose and a colour image, not held out.
+  struct View {
+    int frame;
+    Intrinsics K;
+    Eigen::Isometry3d world_from_camera;
+    ImageU8 color;
+    ImageU16 depth;
+  };
+  std::vector<View> views;
+  {
+    Progress progress("load frames", s.frames.size());
+    for (size_t i = 0; i < s.frames.size(); ++i, progress.tick()) {
+      const Frame& f = s.frames[i];
+      if (held.count(int(i))) {
+        rep.skipped["held_out_views"] += 1;
+        continue;
+      }
+      if (!poses->world_from_camera[i]) {
+        rep.skipped["frames_without_pose"] += 1;
+        continue;
+      }
+      if (f.color.empty()) {
+        rep.skipped["frames_without_color"] += 1;
+        continue;
+      }
+      View v;
+      v.frame = int(i);
+      auto K = cal && cal->color ? std::optional<Intrinsics>(cal->color->intrinsics) : s.color_intrinsics(f);
+      if (!K) return fail("frame " + std::to_string(i) + ": no colour intrinsics (session or --calibration)");
+      v.K = *K;
+      v.world_from_camera = *poses->world_from_camera[i];
+      auto c = load_color(s, f);
+      if (!c) return std::unexpected(c.error());
+      v.color = std::move(*c);
+      if (!f.depth.empty()) {
+        if (!depth_K) return fail("session has depth frames but no depth intrinsics");
+        auto d = load_depth(s, f);
+        if (!d) return std::unexpected(d.error());
+        v.depth = std::move(*d);
+        // A view whose depth is all zero (or unreadable as numbers) counts as without depth.
+        if (std::none_of(v.depth.data.begin(), v.depth.data.end(), [](uint16_t x) { return x != 0; })) {
+          rep.warnings.push_back(fmt::format("frame {}: depth has no valid sample; used for colour only", i));
+          v.depth = {};
+        }
+      }
+      views.push_back(std::move(v));
+    }
+    progress.done();
+  }
+  if (views.empty()) return fail("no frame to reconstruct from (every frame held out, without pose or without colour)");
+  timer.lap("load");
+  const bool has_depth = std::any_of(views.begin(), views.end(), [](const View& v) { return !v.depth.empty(); });
+
+  // Silhouettes (object-centre sessions against a uniform backdrop).
+  std::vector<ImageU8> masks;
+  bool masks_ok = s.layout == Layout::kObjectCentre && job.geometry != "depth";
+  double worst_spread = 0;
+  if (masks_ok) {
+    masks.resize(views.size());
+    for (size_t i = 0; i < views.size() && masks_ok; ++i) {
+      double spread = 0;
+      auto m = backdrop_mask(views[i].color, 0, &spread);
+      worst_spread = std::max(worst_spread, spread);
+      if (!m) masks_ok = false;
+      else masks[i] = std::move(*m);
+    }
+  }
+  std::string mode = job.geometry;
+  if (mode == "auto") {
+    if (has_depth) mode = masks_ok ? "both" : "depth";
+    else if (masks_ok) mode = "hull";
+    else return fail("no depth in the session and no silhouettes (the background is not a uniform backdrop, border spread " +
+                     fmt::format("{:.1f}", worst_spread) + " levels): nothing to reconstruct from");
+  }
+  if ((mode == "hull" || mode == "both") && !masks_ok)
+    return fail(s.layout != Layout::kObjectCentre
+                    ? std::string("--geometry ") + mode + " needs an object-centre session (silhouettes of an object)"
+                    : fmt::format("--geometry {}: the images' border is not a uniform backdrop (spread {:.1f} levels)", mode, worst_spread));
+  if ((mode == "depth" || mode == "both") && !has_depth) return fail("--geometry " + mode + ": the session has no depth");
+  if (mode == "depth") rep.skipped["visual_hull_not_needed"] = 1;
+  if (mode == "hull") rep.skipped["depth_fusion_without_depth"] = 1;
+
+  // Where the object is, and how far apart the cameras are.
+  std::vector<Eigen::Isometry3d> cams;
+  for (const auto& v : views) cams.push_back(v.world_from_camera);
+  std::vector<Eigen::Vector3f> sample;  // depth points in the world, every 4th pixel
+  for (const auto& v : views) {
+    if (v.depth.empty()) continue;
+    const Eigen::Isometry3d world_from_depth = v.world_from_camera * color_from_depth;
+    for (int y = 0; y < v.depth.height; y += 4)
+      for (int x = 0; x < v.depth.width; x += 4)
+        if (const uint16_t d = v.depth.data[size_t(y) * v.depth.width + x])
+          if (auto p = depth_K->unproject({double(x), double(y)}, d * unit)) sample.push_back((world_from_depth * *p).cast<float>());
+  }
+  Eigen::Vector3d centre;
+  double view_distance;
+  std::optional<Eigen::AlignedBox3d> crop;
+  Eigen::AlignedBox3d box;
+  if (s.layout == Layout::kObjectCentre) {
+    centre = optical_axes_centre(cams);
+    double nearest = std::numeric_limits<double>::infinity();
+    for (const auto& c : cams) nearest = std::min(nearest, (c.translation() - centre).norm());
+    const double half = 0.6 * nearest;  // the object cannot reach the cameras
+    box = Eigen::AlignedBox3d(centre - Eigen::Vector3d::Constant(half), centre + Eigen::Vector3d::Constant(half));
+    crop = box;
+    view_distance = camera_spacing(cams, centre).median_distance_m;
+  } else {
+    if (sample.empty()) return fail("camera-centre session without depth: nothing to reconstruct");
+    Eigen::Vector3d lo, hi;
+    for (int a = 0; a < 3; ++a) {
+      std::vector<float> c;
+      for (const auto& p : sample) c.push_back(p[a]);
+      std::sort(c.begin(), c.end());
+      lo[a] = c[c.size() / 200], hi[a] = c[c.size() - 1 - c.size() / 200];
+    }
+    box = Eigen::AlignedBox3d(lo, hi);
+    centre = box.center();
+    std::vector<double> dist;
+    for (size_t i = 0; i < sample.size(); i += 7) {
+      double best = std::numeric_limits<double>::infinity();
+      for (const auto& c : cams) best = std::min(best, (sample[i].cast<double>() - c.translation()).norm());
+      dist.push_back(best);
+    }
+    std::nth_element(dist.begin(), dist.begin() + dist.size() / 2, dist.end());
+    view_distance = dist[dist.size() / 2];
+  }
+  const CameraSpacing spacing = camera_spacing(cams, centre);
+  const double delta = std::min(spacing.max_gap_rad / 2, std::numbers::pi / 2);
+  const double focal = views.front().K.fx;
+  const double pixel_m = view_distance / focal;  // an input pixel at the viewing distance
+  double w0;
+  if (job.voxel_m) {
+    w0 = *job.voxel_m;
+    rep.params["voxel_mode"] = std::string("given");
+  } else {
+    const double w_max = voxel_for_error(job.target_error_px, focal, view_distance, delta);
+    w0 = job.per_region ? w_max / 2 : w_max;
+    rep.params["voxel_mode"] = std::string("auto");
+    rep.params["voxel_bound_m"] = w_max;
+    if (w0 < 2 * pixel_m) {
+      rep.warnings.push_back(fmt::format("the error bound allows {:.2f} mm facets, under two input pixels ({:.2f} mm): "
+                                         "using two pixels (cameras this close in angle need no finer facets)",
+                                         1e3 * w0, 2e3 * pixel_m));
+      w0 = 2 * pixel_m;
+    }
+    const double extent = box.sizes().maxCoeff();
+    if (w0 > extent / 4) w0 = extent / 4;
+  }
+  if (w0 < pixel_m)
+    rep.warnings.push_back(fmt::format("voxel {:.3f} mm is below one input pixel at the viewing distance ({:.3f} mm): "
+                                       "facets finer than the photos",
+                                       1e3 * w0, 1e3 * pixel_m));
+  const double w_largest = job.per_region ? 2 * w0 : w0;
+  rep.params["voxel_m"] = w0;
+  rep.params["voxel_coarse_m"] = w_largest;
+  rep.params["geometry"] = mode;
+  rep.params["poses"] = poses->source;
+  rep.params["target_error_px"] = job.target_error_px;
+  rep.params["camera_gap_deg"] = spacing.max_gap_rad * 180 / std::numbers::pi;
+  rep.params["view_distance_m"] = view_distance;
+  rep.params["truncation_m"] = job.truncation_voxels * w0;
+  rep.errors["predicted_texel_error_px"] = focal * texel_error_bound(w_largest, delta) / view_distance;
+  const size_t max_cells = size_t(4e8);
+  if (std::pow(box.sizes().maxCoeff() / w0, 3) > double(max_cells) * 64)
+    return fail(fmt::format("voxel {:.3g} m is too small for a {:.3g} m scene (over 2.5e10 cells): choose a larger --voxel",
+                            w0, box.sizes().maxCoeff()));
+
+  // Fusion.
+  SparseVolume volume(w0, job.truncation_voxels * w0, crop);
+  std::vector<DepthObservation> depth_obs;
+  if (mode == "depth" || mode == "both") {
+    Progress progress("fuse depth", views.size());
+    for (const auto& v : views) {
+      if (v.depth.empty()) {
+        rep.skipped["views_without_depth"] += 1;
+        progress.tick();
+        continue;
+      }
+      DepthObservation o{&v.depth, unit, *depth_K, v.world_from_camera * color_from_depth};
+      volume.integrate(o, job.threads);
+      depth_obs.push_back(o);
+      progress.tick();
+    }
+    progress.done();
+    const auto& fs_ = volume.fusion_stats();
+    rep.counts["depth_samples"] = double(fs_.depth_samples);
+    rep.counts["voxel_updates"] = double(fs_.voxel_updates);
+    if (fs_.samples_outside_crop) rep.skipped["depth_samples_outside_object_box"] = double(fs_.samples_outside_crop);
+  }
+  timer.lap("fusion");
+  if (mode == "hull" || mode == "both") {
+    std::vector<SilhouetteObservation> sil;
+    for (size_t i = 0; i < views.size(); ++i) sil.push_back({&masks[i], views[i].K, views[i].world_from_camera});
+    const HullStats hs = volume.carve_hull(sil, mode == "both" ? depth_obs : std::vector<DepthObservation>{}, box, job.threads);
+    rep.counts["hull_voxels"] = double(hs.hull_voxels);
+    rep.counts["hull_cells_tested"] = double(hs.cells_tested);
+    rep.counts["fuzzy_voxels"] = double(hs.fuzzy_voxels);
+    if (mode == "both") {
+      rep.skipped["hull_voxels_free_by_depth"] = double(hs.carved_by_depth);
+      rep.skipped["hull_voxels_inside_by_depth"] = double(hs.solid_by_depth);
+    }
+  }
+  timer.lap("hull");
+
+  // Evidence and the fused surface.
+  const auto evidence = volume.evidence(w0 / 4);
+  if (evidence.empty()) rep.warnings.push_back("no voxel holds surface evidence: the model has no facets");
+  rep.counts["evidence_voxels"] = double(evidence.size());
+  rep.counts["active_voxels"] = double(volume.active_voxels());
+  rep.skipped["voxels_without_evidence"] = double(volume.active_voxels()) - double(evidence.size());
+  rep.counts["volume_bytes"] = double(volume.memory_bytes());
+  Mesh surface = volume.surface_mesh();
+  rep.counts["surface_triangles"] = double(surface.faces.size());
+  timer.lap("evidence");
+
+  // Per-camera depth and textures.
+  auto caster = MeshRaycaster::create(surface);
+  if (!caster) return std::unexpected(caster.error());
+  std::error_code ec;
+  fs::create_directories(job.out / "cameras", ec);
+  if (ec) return fail("cannot create '" + (job.out / "cameras").string() + "': " + ec.message());
+  Model model;
+  model.voxel_size_m = w0;
+  std::vector<ImageF> distance(views.size());
+  {
+    Progress progress("camera depth", views.size());
+    for (size_t i = 0; i < views.size(); ++i) {
+      const View& v = views[i];
+      distance[i] = (*caster)->distance_image(v.K, v.world_from_camera, job.threads);
+      ModelCamera mc;
+      mc.intrinsics = v.K;
+      mc.world_from_camera = v.world_from_camera;
+      mc.session_frame = v.frame;
+      if (job.textures) mc.texture = "cameras/" + frame_file_name(v.frame, "exr");
+      model.cameras.push_back(mc);
+      progress.tick();
+    }
+    progress.done();
+  }
+  timer.lap("camera_depth");
+  if (job.textures) {
+    // Colour + alpha (geometry hit) + distance, one OpenEXR per camera, written in parallel.
+    std::vector<Status> written(views.size());
+    parallel_for(int(views.size()), worker_count(job.threads), [&](int i) {
+      const View& v = views[size_t(i)];
+      RgbazImage t{ImageU8(v.K.width, v.K.height, 4), distance[size_t(i)]};
+      const size_t ch = size_t(v.color.channels);
+      for (size_t p = 0; p < t.rgba.pixels(); ++p) {
+        for (size_t k = 0; k < 3; ++k) t.rgba.data[p * 4 + k] = v.color.data[p * ch + std::min(k, ch - 1)];
+        t.rgba.data[p * 4 + 3] = t.distance.data[p] > 0 ? 255 : 0;
+      }
+      written[size_t(i)] = write_rgbaz(job.out / model.cameras[size_t(i)].texture, t);
+    });
+    for (const auto& st : written)
+      if (!st) return std::unexpected(st.error());
+  } else {
+    rep.skipped["camera_textures_not_written"] = double(views.size());
+  }
+  timer.lap("textures");
+
+  // Facets.
+  std::vector<FacetCamera> fc;
+  for (size_t i = 0; i < views.size(); ++i) fc.push_back({views[i].K, views[i].world_from_camera, &distance[i]});
+  FacetOptions fo;
+  fo.voxel_m = w0;
+  fo.per_region = job.per_region;
+  fo.threads = job.threads;
+  const FacetStats st = build_facets(evidence, fc, fo, model.facets, model.facet_cameras);
+  rep.counts["facets"] = double(st.facets);
+  rep.counts["facets_fine"] = double(st.fine);
+  rep.counts["facets_coarse"] = double(st.coarse);
+  rep.counts["facets_fuzzy"] = double(st.fuzzy);
+  rep.counts["facet_camera_links"] = double(st.camera_links);
+  rep.counts["cameras"] = double(views.size());
+  rep.skipped["facets_seen_by_no_camera"] = double(st.unseen);
+  rep.skipped["facet_camera_pairs_occluded"] = double(st.occluded);
+  rep.skipped["facet_camera_pairs_outside_image"] = double(st.outside_image);
+  timer.lap("facets");
+
+  Eigen::AlignedBox3d bounds;
+  for (const auto& f : model.facets) {
+    const Eigen::Vector3d c(f.center[0], f.center[1], f.center[2]);
+    bounds.extend(c - Eigen::Vector3d::Constant(f.size));
+    bounds.extend(c + Eigen::Vector3d::Constant(f.size));
+  }
+  if (bounds.isEmpty()) bounds = Eigen::AlignedBox3d(centre, centre);
+  model.bounds = bounds;
+  if (!surface.faces.empty()) {
+    surface.compute_vertex_normals();
+    if (auto st2 = write_ply_mesh(job.out / "surface.ply", surface); !st2) return std::unexpected(st2.error());
+    model.patch_mesh = "surface.ply";
+  }
+  if (auto st2 = save_model(job.out, model); !st2) return std::unexpected(st2.error());
+  timer.lap("write");
+  rep.counts["model_bytes"] = double(model.facets.size() * sizeof(FacetRecord) + model.facet_cameras.size() * 4);
+  rep.seconds = total.seconds();
+
+  // The synthetic rig knows the truth: report the model's error against it
+  // (not counted in the build seconds).
+  const fs::path truth_mesh = s.root / "ground_truth" / "geometry.ply";
+  if (fs::exists(truth_mesh)) {
+    auto mesh = read_ply_mesh(truth_mesh);
+    if (!mesh) return std::unexpected(mesh.error());
+    std::vector<FacetRecord> solid;
+    for (const auto& f : model.facets)
+      if (f.size <= w0 * 1.01) solid.push_back(f);
+    const SurfaceError all = facet_surface_error(model.facets, *mesh, w0 / 5);
+    const SurfaceError fine = facet_surface_error(solid, *mesh, w0 / 5);
+    rep.errors["facets_within_w_fraction"] = all.within_size;
+    rep.errors["facet_distance_median_m"] = all.median_m;
+    rep.errors["facet_distance_p99_m"] = all.p99_m;
+    rep.errors["fine_facets_within_w_fraction"] = fine.within_size;
+    if (job.textures) {
+      auto de = camera_depth_error(model, job.out, s.root);
+      if (!de) return std::unexpected(de.error());
+      rep.errors["camera_depth_median_m"] = de->median_m;
+      rep.errors["camera_depth_p90_m"] = de->p90_m;
+      rep.errors["camera_depth_missing_fraction"] = de->missing;
+    }
+    if (fs::exists(s.root / "ground_truth" / "strands.ply")) {
+      auto sc = strand_coverage(model, s.root);
+      if (!sc) return std::unexpected(sc.error());
+      rep.errors["strand_pixels_covered_fraction"] = sc->covered;
+    }
+    timer.lap("truth_check");
+  }
+  return rep;
+}
+
+}  // namespace s2r

@@ -1,0 +1,42 @@
+// Errors of a model against the synthetic rig's ground truth (tests and
+// `s2r bench reconstruct`): facet centres against the true surface, per-camera
+// depth against exact depth, and how much of the true strands the facets cover.
+#pragma once
+
+#include <filesystem>
+#include <vector>
+
+#include "core/mesh.h"
+#include "core/result.h"
+#include "reconstruct/model.h"
+
+namespace s2r {
+
+struct SurfaceError {
+  size_t facets = 0;
+  double within_size = 0;      // fraction of facet centres within their own size w of the surface
+  double median_m = 0, p99_m = 0, max_m = 0;
+};
+// Distances from facet centres (those with `fuzzy == include_fuzzy` or all when
+// `all`) to the mesh, through dense samples of the mesh (spacing `sample_m`).
+SurfaceError facet_surface_error(const std::vector<FacetRecord>& facets, const Mesh& truth, double sample_m);
+
+struct DepthError {
+  size_t pixels = 0;        // compared: both hit
+  double median_m = 0, p90_m = 0;
+  double missing = 0;       // fraction of truly covered pixels where the model has no depth
+};
+// The model's camera textures' distances against ground_truth/depth_color (z in
+// the colour camera), over pixels where the true surface is seen.
+Result<DepthError> camera_depth_error(const Model& model, const std::filesystem::path& model_dir,
+                                      const std::filesystem::path& session_dir);
+
+struct StrandCoverage {
+  size_t strand_pixels = 0;
+  double covered = 0;  // fraction of true strand pixels under some projected facet
+};
+// Facets drawn as squares of side sqrt(3) w facing each depth camera, against
+// ground_truth/labels (2 = strand).
+Result<StrandCoverage> strand_coverage(const Model& model, const std::filesystem::path& session_dir);
+
+}  // namespace s2r
