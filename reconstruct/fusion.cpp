@@ -126,6 +126,10 @@ std::optional<ImageU8> backdrop_mask(const ImageU8& color, double threshold, dou
 
 struct SparseVolume::Impl {
   double voxel, tau;
+  // Behind a measured surface distances are clamped at a voxel and a half:
+  // objects thinner than tau would otherwise be overwritten by the deep
+  // negative band of the views from the other side.
+  double behind;
   std::optional<Eigen::AlignedBox3d> crop;
   TsdfGrid::Ptr tsdf;
   openvdb::MaskGrid::Ptr hull;   // hull voxels (after depth tests)
@@ -142,6 +146,7 @@ SparseVolume::SparseVolume(double voxel_m, double truncation_m, std::optional<Ei
   vdb_init();
   impl_->voxel = voxel_m;
   impl_->tau = std::max(truncation_m, voxel_m);
+  impl_->behind = std::min(impl_->tau, 1.5 * voxel_m);
   impl_->crop = crop;
   impl_->tsdf = TsdfGrid::create(openvdb::Vec3s(0.f));
   impl_->tsdf->setTransform(openvdb::math::Transform::createLinearTransform(voxel_m));
@@ -213,8 +218,8 @@ void SparseVolume::integrate(const DepthObservation& v, int threads) {
           const uint16_t d = depth.data[size_t(y) * depth.width + x];
           if (d == 0) continue;
           const double sdf = d * v.unit_m - pc.z();
-          if (sdf < -m.tau) continue;  // behind the surface: unknown
-          const float s = float(std::min(sdf, m.tau));
+          if (sdf < -m.tau) continue;  // far behind the surface: unknown
+          const float s = float(std::clamp(sdf, -m.behind, m.tau));
           openvdb::Vec3s val = dst->getValue(c);
           const float n = val[1] + 1.f;
           const float delta = s - val[0];
@@ -307,8 +312,8 @@ HullStats SparseVolume::carve_hull(const std::vector<SilhouetteObservation>& vie
   if (!depth.empty()) {
     const double radius = 0.5 * std::sqrt(3.0) * m.voxel;
     // Free: in front of every depth sample of the footprint by the truncation
-    // distance. Hidden: behind all of them by the voxel's diameter.
-    const double margin = std::max(m.tau, radius), hidden = 2 * radius;
+    // distance. Hidden: wholly behind all of them (by its half-diagonal).
+    const double margin = std::max(m.tau, radius), hidden = radius;
     std::vector<Eigen::Isometry3d> cam_from_world;
     for (const auto& d : depth) cam_from_world.push_back(d.world_from_camera.inverse());
     auto acc_proto = m.tsdf->getConstAccessor();
@@ -413,6 +418,18 @@ std::vector<EvidenceVoxel> SparseVolume::evidence(double reliability_sigma_m) co
       if (has[0] && has[1]) grad[a] = (nb[1][0] - nb[0][0]) / 2;
       else if (has[1]) grad[a] = nb[1][0] - v[0];
       else if (has[0]) grad[a] = v[0] - nb[0][0];
+    }
+    if (!surface && std::abs(v[0]) < 0.5 * m.voxel) {
+      // No observed neighbour across the surface (an object about one voxel
+      // thick): the voxel holds surface when its distance is the smallest around.
+      surface = true;
+      for (int a = 0; a < 3 && surface; ++a)
+        for (int k = 0; k < 2; ++k) {
+          Coord n = c;
+          n[a] += k ? 1 : -1;
+          openvdb::Vec3s nb;
+          if (value(n, nb) && std::abs(nb[0]) < std::abs(v[0])) surface = false;
+        }
     }
     if (!surface) continue;
     EvidenceVoxel e;

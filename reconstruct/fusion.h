@@ -2,7 +2,8 @@
 // OpenVDB is confined to fusion.cpp.
 //
 // Depth: a truncated signed distance per voxel (projective, z along the depth
-// camera's axis, truncated at +tau, not updated behind -tau), with the number
+// camera's axis, truncated at +tau and, behind the measured surface, clamped at
+// -1.5 voxels so thin parts survive views from the other side), with the number
 // of views that observed it and the spread of their signed distances (Welford),
 // from which the voxel's reliability follows (agreement between views).
 //

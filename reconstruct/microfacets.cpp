@@ -102,12 +102,10 @@ FacetStats build_facets(const std::vector<EvidenceVoxel>& ev, const std::vector<
       continue;
     }
     drafts.push_back({e.centre, e.normal, float(o.voxel_m), e.reliability, e.fuzzy});
-    ++st.fine;
   }
   for (const auto& [k, m] : merges) {
     const Eigen::Vector3f n = m.sum_n.norm() > 1e-6f ? Eigen::Vector3f(m.sum_n.normalized()) : Eigen::Vector3f::Zero();
     drafts.push_back({m.sum_c / float(m.n), n, float(2 * o.voxel_m), m.sum_r / float(m.n), m.fuzzy});
-    ++st.coarse;
   }
   // Deterministic order (the hash map's is not): by position.
   std::sort(drafts.begin(), drafts.end(), [](const Draft& a, const Draft& b) {
@@ -159,6 +157,8 @@ FacetStats build_facets(const std::vector<EvidenceVoxel>& ev, const std::vector<
   facets.reserve(drafts.size());
   for (size_t i = 0; i < drafts.size(); ++i) {
     const Draft& d = drafts[i];
+    st.occluded += occluded[i];
+    st.outside_image += outside[i];
     if (seen[i].empty()) {
       ++st.unseen;
       if (!o.keep_unseen) continue;
@@ -172,8 +172,7 @@ FacetStats build_facets(const std::vector<EvidenceVoxel>& ev, const std::vector<
     facet_cameras.insert(facet_cameras.end(), seen[i].begin(), seen[i].end());
     facets.push_back(r);
     st.fuzzy += d.fuzzy;
-    st.occluded += occluded[i];
-    st.outside_image += outside[i];
+    (d.size > float(o.voxel_m) * 1.5f ? st.coarse : st.fine) += 1;
   }
   st.facets = facets.size();
   st.camera_links = facet_cameras.size();

@@ -1,0 +1,270 @@
+// Fusion, facets and the error bound on analytic scenes (a sphere seen by a
+// ring of exact depth cameras), and the stiff cases of DESIGN.md section 12:
+// a view with no valid depth, one camera only, a facet no camera sees, w of
+// the whole object, a voxel at the volume's border.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <numbers>
+#include <unistd.h>
+
+#include "core/image_io.h"
+#include "reconstruct/camera_depth.h"
+#include "reconstruct/fusion.h"
+#include "reconstruct/microfacets.h"
+
+using namespace s2r;
+namespace fs = std::filesystem;
+
+namespace {
+
+constexpr double kDeg = std::numbers::pi / 180;
+const Eigen::Vector3d kCentre(0.01, -0.02, 0.03);
+constexpr double kRadius = 0.05;
+
+Intrinsics camera() {
+  Intrinsics K;
+  K.width = 160, K.height = 120, K.fx = K.fy = 150, K.cx = 79.5, K.cy = 59.5;
+  return K;
+}
+
+// Camera on a ring of radius 0.3 m about kCentre (axis y), looking at it.
+Eigen::Isometry3d ring_pose(double angle_deg, double elevation_deg = 10) {
+  const double a = angle_deg * kDeg, e = elevation_deg * kDeg;
+  const Eigen::Vector3d eye = kCentre + 0.3 * Eigen::Vector3d(std::sin(a) * std::cos(e), -std::sin(e), -std::cos(a) * std::cos(e));
+  const Eigen::Vector3d z = (kCentre - eye).normalized();
+  const Eigen::Vector3d x = Eigen::Vector3d::UnitY().cross(z).normalized();
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() << x, z.cross(x), z;
+  T.translation() = eye;
+  return T;
+}
+
+// Exact depth (z, 0.1 mm units) of the sphere.
+ImageU16 sphere_depth(const Intrinsics& K, const Eigen::Isometry3d& world_from_camera) {
+  ImageU16 d(K.width, K.height, 1, 0);
+  const Eigen::Vector3d c = world_from_camera.inverse() * kCentre;
+  for (int y = 0; y < K.height; ++y)
+    for (int x = 0; x < K.width; ++x) {
+      const Eigen::Vector3d r = K.ray({double(x), double(y)})->normalized();
+      const double b = r.dot(c), disc = b * b - (c.squaredNorm() - kRadius * kRadius);
+      if (disc < 0) continue;
+      const double t = b - std::sqrt(disc);
+      d.at(x, y) = uint16_t(std::lround(t * r.z() / 1e-4));
+    }
+  return d;
+}
+
+struct Ring {
+  std::vector<ImageU16> depth;
+  std::vector<Eigen::Isometry3d> poses;
+};
+Ring ring(int n) {
+  Ring r;
+  for (int i = 0; i < n; ++i) {
+    r.poses.push_back(ring_pose(360.0 * i / n));
+    r.depth.push_back(sphere_depth(camera(), r.poses.back()));
+  }
+  return r;
+}
+
+DepthObservation obs(const Ring& r, size_t i) { return {&r.depth[i], 1e-4, camera(), r.poses[i]}; }
+
+}  // namespace
+
+TEST(ErrorBound, SeedExampleAndInverse) {
+  // 30 deg between cameras: a view is at most 15 deg from the nearest one.
+  EXPECT_NEAR(texel_error_bound(1.0, 15 * kDeg), 0.129, 0.001);
+  const double w = voxel_for_error(0.5, 600, 0.4, 7.5 * kDeg);
+  EXPECT_NEAR(600 * texel_error_bound(w, 7.5 * kDeg) / 0.4, 0.5, 1e-9);
+  // Grazing / coincident extremes stay finite.
+  EXPECT_TRUE(std::isfinite(voxel_for_error(0.5, 600, 0.4, 0)));
+  EXPECT_NEAR(texel_error_bound(1.0, 3.0), 0.5, 1e-12);  // clamped at 90 deg
+}
+
+TEST(CameraSpacing, RingAndLoneCamera) {
+  std::vector<Eigen::Isometry3d> cams;
+  for (int i = 0; i < 24; ++i) cams.push_back(ring_pose(15.0 * i, 0));
+  const CameraSpacing s = camera_spacing(cams, kCentre);
+  EXPECT_NEAR(s.max_gap_rad / kDeg, 15, 1e-6);
+  EXPECT_NEAR(s.median_distance_m, 0.3, 1e-9);
+  EXPECT_LT((optical_axes_centre(cams) - kCentre).norm(), 1e-9);
+  const CameraSpacing one = camera_spacing({cams[0]}, kCentre);
+  EXPECT_NEAR(one.max_gap_rad, std::numbers::pi, 1e-12);  // any view may be opposite
+}
+
+TEST(Reliability, AgreementAndViewCount) {
+  EXPECT_EQ(depth_reliability(1, 0, 1e-3), 0.f);
+  EXPECT_FLOAT_EQ(depth_reliability(4, 0, 1e-3), 1.f);
+  EXPECT_NEAR(depth_reliability(4, 1e-3f, 1e-3), std::exp(-0.5), 1e-6);
+  EXPECT_LT(depth_reliability(2, 0, 1e-3), depth_reliability(3, 0, 1e-3));
+  EXPECT_EQ(depth_reliability(5, std::nanf(""), 1e-3), 0.f);
+}
+
+TEST(BackdropMask, UniformBorderAndClutter) {
+  ImageU8 im(64, 48, 3, 50);
+  for (int y = 10; y < 30; ++y)
+    for (int x = 20; x < 40; ++x) im.at(x, y, 1) = 200;
+  auto m = backdrop_mask(im);
+  ASSERT_TRUE(m);
+  EXPECT_EQ(m->at(30, 20), 255);
+  EXPECT_EQ(m->at(5, 5), 0);
+  for (int y = 0; y < 48; ++y)  // a room behind the object: the border varies
+    for (int x = 0; x < 64; ++x) im.at(x, y, 0) = uint8_t((x * 37 + y * 91) % 256);
+  double spread = 0;
+  EXPECT_FALSE(backdrop_mask(im, 0, &spread));
+  EXPECT_GT(spread, 12);
+}
+
+TEST(Fusion, SphereFromARingOfExactDepth) {
+  const Ring r = ring(12);
+  const double w = 0.004;
+  SparseVolume vol(w, 4 * w);
+  for (size_t i = 0; i < r.depth.size(); ++i) vol.integrate(obs(r, i));
+  EXPECT_EQ(vol.fusion_stats().views, 12u);
+  const auto ev = vol.evidence(w / 2);
+  ASSERT_GT(ev.size(), 500u);
+  size_t within = 0, outward = 0, reliable = 0;
+  for (const auto& e : ev) {
+    const Eigen::Vector3d c = e.centre.cast<double>();
+    within += std::abs((c - kCentre).norm() - kRadius) <= w;
+    outward += e.normal.cast<double>().dot((c - kCentre).normalized()) > 0.9;
+    reliable += e.reliability > 0.5;
+    EXPECT_FALSE(e.fuzzy);
+  }
+  EXPECT_GE(double(within) / ev.size(), 0.99);
+  EXPECT_GE(double(outward) / ev.size(), 0.95);
+  EXPECT_GE(double(reliable) / ev.size(), 0.5);
+  // The fused surface, ray cast from a camera, gives the sphere's distance.
+  auto caster = MeshRaycaster::create(vol.surface_mesh());
+  ASSERT_TRUE(caster);
+  const ImageF d = (*caster)->distance_image(camera(), r.poses[0]);
+  const Eigen::Vector3d eye = r.poses[0].translation();
+  EXPECT_NEAR(d.at(80, 60), (kCentre - eye).norm() - kRadius, w / 4);
+  EXPECT_EQ(d.at(0, 0), 0.f);  // misses
+  EXPECT_GT(vol.memory_bytes(), 0u);
+}
+
+TEST(Fusion, ViewWithoutValidDepthChangesNothing) {
+  const Ring r = ring(6);
+  SparseVolume a(0.004, 0.016), b(0.004, 0.016);
+  ImageU16 zeros(camera().width, camera().height, 1, 0);
+  for (size_t i = 0; i < 6; ++i) a.integrate(obs(r, i)), b.integrate(obs(r, i));
+  b.integrate({&zeros, 1e-4, camera(), r.poses[0]});
+  EXPECT_EQ(b.fusion_stats().views_without_depth, 1u);
+  EXPECT_EQ(a.evidence(0.001).size(), b.evidence(0.001).size());
+}
+
+TEST(Fusion, OneCameraOnlyGivesUnreliableFacets) {
+  const Ring r = ring(12);
+  SparseVolume vol(0.004, 0.016);
+  vol.integrate(obs(r, 0));
+  const auto ev = vol.evidence(0.001);
+  ASSERT_GT(ev.size(), 50u);
+  for (const auto& e : ev) EXPECT_EQ(e.reliability, 0.f);  // no agreement to measure
+  // Per region they merge into facets twice the voxel.
+  std::vector<FacetRecord> facets;
+  std::vector<uint32_t> cams;
+  FacetOptions fo;
+  fo.voxel_m = 0.004;
+  const FacetStats st = build_facets(ev, {{camera(), r.poses[0], nullptr}}, fo, facets, cams);
+  EXPECT_EQ(st.fine, 0u);
+  EXPECT_GT(st.coarse, 0u);
+  for (const auto& f : facets) EXPECT_FLOAT_EQ(f.size, 0.008f);
+}
+
+TEST(Fusion, CropAtTheVolumeBorder) {
+  const Ring r = ring(12);
+  // The crop cuts the sphere through its centre: nothing beyond it, no crash at the border.
+  const Eigen::AlignedBox3d crop(kCentre - Eigen::Vector3d(1, 1, 1), kCentre + Eigen::Vector3d(0, 1, 1));
+  SparseVolume vol(0.004, 0.016, crop);
+  for (size_t i = 0; i < r.depth.size(); ++i) vol.integrate(obs(r, i));
+  EXPECT_GT(vol.fusion_stats().samples_outside_crop, 0u);
+  const auto ev = vol.evidence(0.001);
+  ASSERT_FALSE(ev.empty());
+  for (const auto& e : ev) EXPECT_LE(e.centre.x(), kCentre.x() + 1e-6);
+}
+
+TEST(Fusion, VoxelAsLargeAsTheObject) {
+  const Ring r = ring(12);
+  SparseVolume vol(2 * kRadius, 4 * kRadius);
+  for (size_t i = 0; i < r.depth.size(); ++i) vol.integrate(obs(r, i));
+  const auto ev = vol.evidence(kRadius);
+  ASSERT_FALSE(ev.empty());
+  for (const auto& e : ev) {
+    EXPECT_TRUE(e.centre.allFinite());
+    EXPECT_LE(((e.centre.cast<double>() - kCentre).norm()), 2 * kRadius * 1.8);
+  }
+}
+
+TEST(VisualHull, SphereSilhouettesAndDepthCarving) {
+  const Ring r = ring(12);
+  std::vector<ImageU8> masks;
+  for (const auto& d : r.depth) {
+    ImageU8 m(d.width, d.height, 1, 0);
+    for (size_t i = 0; i < d.pixels(); ++i) m.data[i] = d.data[i] ? 255 : 0;
+    masks.push_back(m);
+  }
+  std::vector<SilhouetteObservation> sil;
+  for (size_t i = 0; i < masks.size(); ++i) sil.push_back({&masks[i], camera(), r.poses[i]});
+  const double w = 0.004;
+  const Eigen::AlignedBox3d box(kCentre - Eigen::Vector3d::Constant(0.1), kCentre + Eigen::Vector3d::Constant(0.1));
+  // Silhouettes only: the hull's boundary, a little outside the sphere.
+  SparseVolume hull(w, 4 * w);
+  const HullStats hs = hull.carve_hull(sil, {}, box);
+  EXPECT_GT(hs.hull_voxels, 5000u);
+  const auto ev = hull.evidence(w);
+  ASSERT_GT(ev.size(), 500u);
+  for (const auto& e : ev) {
+    EXPECT_TRUE(e.fuzzy);
+    const double dist = (e.centre.cast<double>() - kCentre).norm() - kRadius;
+    EXPECT_GT(dist, -1.5 * w);
+    EXPECT_LT(dist, 0.02);  // a ring of 12 leaves the poles loose
+  }
+  // With depth as well, depth explains everything: (almost) no fuzzy voxel is left.
+  SparseVolume both(w, 4 * w);
+  std::vector<DepthObservation> d;
+  for (size_t i = 0; i < r.depth.size(); ++i) both.integrate(obs(r, i)), d.push_back(obs(r, i));
+  const HullStats bs = both.carve_hull(sil, d, box);
+  EXPECT_GT(bs.solid_by_depth, 1000u);
+  EXPECT_LT(bs.fuzzy_voxels, bs.hull_voxels / 20);
+}
+
+TEST(Facets, OccludedCameraAndUnseenFacet) {
+  // Two facets on the z axis; a camera at the origin looking along +z sees the
+  // near one; the far one is behind the near surface (distance image says 1 m).
+  Intrinsics K = camera();
+  ImageF dist(K.width, K.height, 1, 1.0f);
+  std::vector<EvidenceVoxel> ev(2);
+  ev[0].ijk = {0, 0, 100}, ev[0].centre = {0, 0, 1.0f}, ev[0].reliability = 1;
+  ev[1].ijk = {0, 0, 150}, ev[1].centre = {0, 0, 1.5f}, ev[1].reliability = 1;
+  FacetOptions fo;
+  fo.voxel_m = 0.01;
+  std::vector<FacetRecord> facets;
+  std::vector<uint32_t> cams;
+  FacetStats st = build_facets(ev, {{K, Eigen::Isometry3d::Identity(), &dist}}, fo, facets, cams);
+  EXPECT_EQ(st.unseen, 1u);
+  EXPECT_EQ(st.occluded, 1u);
+  ASSERT_EQ(facets.size(), 1u);  // the unseen one is left out
+  EXPECT_FLOAT_EQ(facets[0].center[2], 1.0f);
+  EXPECT_EQ(facets[0].camera_count, 1u);
+  fo.keep_unseen = true;
+  st = build_facets(ev, {{K, Eigen::Isometry3d::Identity(), &dist}}, fo, facets, cams);
+  ASSERT_EQ(facets.size(), 2u);
+  EXPECT_EQ(facets[1].camera_count, 0u);
+}
+
+TEST(CameraTexture, RgbazRoundTrip) {
+  const fs::path p = fs::temp_directory_path() / ("s2r_rgbaz_" + std::to_string(::getpid()) + ".exr");
+  RgbazImage t{ImageU8(8, 4, 4, 0), ImageF(8, 4, 1, 0.f)};
+  for (size_t i = 0; i < t.rgba.data.size(); ++i) t.rgba.data[i] = uint8_t(i * 7);
+  for (size_t i = 0; i < t.distance.data.size(); ++i) t.distance.data[i] = 0.25f + 1e-4f * float(i);
+  ASSERT_TRUE(write_rgbaz(p, t));
+  auto back = read_rgbaz(p);
+  ASSERT_TRUE(back) << back.error().message;
+  EXPECT_EQ(back->rgba.data, t.rgba.data);  // 8-bit levels survive half floats
+  EXPECT_EQ(back->distance.data, t.distance.data);  // distances are stored as float
+  EXPECT_FALSE(write_rgbaz(p, {ImageU8(8, 4, 3), ImageF(8, 4, 1)}));
+  fs::remove(p);
+}
