@@ -433,6 +433,7 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
       auto sc = strand_coverage(model, s.root);
       if (!sc) return std::unexpected(sc.error());
       rep.errors["strand_pixels_covered_fraction"] = sc->covered;
+      rep.errors["facet_pixels_on_background_fraction"] = sc->background;
     }
     timer.lap("truth_check");
   }

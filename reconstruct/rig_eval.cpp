@@ -99,7 +99,7 @@ Result<StrandCoverage> strand_coverage(const Model& model, const fs::path& sessi
   auto truth = load_synth_truth(session_dir);
   if (!truth) return std::unexpected(truth.error());
   StrandCoverage sc;
-  size_t covered = 0;
+  size_t covered = 0, all_covered = 0, over = 0;
   for (const auto& cam : model.cameras) {
     if (cam.session_frame < 0 || size_t(cam.session_frame) >= truth->world_from_camera.size()) continue;
     auto labels = read_image_u8(session_dir / "ground_truth" / "labels" / frame_file_name(cam.session_frame, "png"));
@@ -118,13 +118,18 @@ Result<StrandCoverage> strand_coverage(const Model& model, const fs::path& sessi
       for (int y = y0; y <= y1; ++y)
         for (int x = x0; x <= x1; ++x) cover.at(x, y) = 1;
     }
-    for (size_t i = 0; i < cover.pixels(); ++i)
-      if (labels->data[i * size_t(labels->channels)] == 2) {
+    for (size_t i = 0; i < cover.pixels(); ++i) {
+      const uint8_t label = labels->data[i * size_t(labels->channels)];
+      if (label == 2) {
         ++sc.strand_pixels;
         covered += cover.data[i];
       }
+      all_covered += cover.data[i];
+      over += cover.data[i] && label == 0;
+    }
   }
   sc.covered = sc.strand_pixels ? double(covered) / double(sc.strand_pixels) : 0;
+  sc.background = all_covered ? double(over) / double(all_covered) : 0;
   return sc;
 }
 

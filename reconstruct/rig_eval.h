@@ -34,6 +34,7 @@ Result<DepthError> camera_depth_error(const Model& model, const std::filesystem:
 struct StrandCoverage {
   size_t strand_pixels = 0;
   double covered = 0;  // fraction of true strand pixels under some projected facet
+  double background = 0;  // fraction of covered pixels where the truth has nothing (overreach)
 };
 // Facets drawn as squares of side sqrt(3) w facing each depth camera, against
 // ground_truth/labels (2 = strand).

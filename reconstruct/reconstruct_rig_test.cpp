@@ -1,0 +1,165 @@
+// s2r reconstruct on the synthetic rig, whose geometry is known: the textured
+// bunny (facet centres on the surface, per-camera depth against exact depth),
+// the fuzzy object (facets cover the strands the depth camera loses), and the
+// job's stiff cases on the small "blob" scene: a view whose depth is all zero,
+// one camera only, w below a pixel, w of the whole object, held-out views.
+#include <gtest/gtest.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <map>
+#include <unistd.h>
+
+#include "capture/synth_rig.h"
+#include "core/image_io.h"
+#include "core/progress.h"
+#include "reconstruct/model.h"
+#include "reconstruct/reconstruct_job.h"
+
+namespace fs = std::filesystem;
+using namespace s2r;
+
+namespace {
+
+fs::path scratch() {
+  static const fs::path dir = fs::temp_directory_path() / ("s2r_recon_" + std::to_string(getpid()));
+  return dir;
+}
+
+const fs::path& session(const std::string& scene, int views, int width = 640, int height = 480) {
+  static std::map<std::string, fs::path> cache;
+  const std::string key = scene + "_" + std::to_string(views) + "_" + std::to_string(width);
+  if (auto it = cache.find(key); it != cache.end()) return it->second;
+  set_progress_enabled(false);
+  const fs::path dir = scratch() / key;
+  fs::remove_all(dir);
+  fs::create_directories(dir.parent_path());
+  SynthOptions o;
+  o.scene = scene;
+  o.views = views;
+  o.width = width, o.height = height;
+  o.seed = 5;
+  o.data_dir = S2R_DATA_DIR;
+  auto made = synth_session(o, dir);
+  EXPECT_TRUE(made) << made.error().message;
+  return cache.emplace(key, dir).first->second;
+}
+
+Report reconstruct(ReconstructJob job) {
+  job.quiet = true;
+  auto r = run_reconstruct_job(job);
+  EXPECT_TRUE(r) << r.error().message;
+  return r ? *r : Report{};
+}
+
+void print(const std::string& what, const Report& r) {
+  std::printf("%s: %s\n", what.c_str(), r.brief().c_str());
+}
+
+}  // namespace
+
+TEST(ReconstructRig, TexturedBunnyFacetsOnTheSurface) {
+  ReconstructJob job;
+  job.session = session("bunny", 24);
+  job.out = scratch() / "bunny_model";
+  const Report r = reconstruct(job);
+  print("bunny", r);
+  // >= 99 % of facet centres within their own w of the true surface.
+  EXPECT_GE(r.errors.at("facets_within_w_fraction"), 0.99);
+  // Per-camera depth against the exact depth: median < w/4 where the surface is seen.
+  const double w = std::get<double>(r.params.at("voxel_m"));
+  EXPECT_LT(r.errors.at("camera_depth_median_m"), w / 4);
+  EXPECT_LT(r.errors.at("camera_depth_missing_fraction"), 0.03);
+  EXPECT_EQ(std::get<std::string>(r.params.at("geometry")), "both");
+  // Per region: both sizes occur, the reliable ones dominate on a textured solid.
+  EXPECT_GT(r.counts.at("facets_fine"), r.counts.at("facets_coarse"));
+  EXPECT_GT(r.counts.at("facets_coarse"), 0);
+  // The model loads back with its textures.
+  auto m = load_model(job.out);
+  ASSERT_TRUE(m) << m.error().message;
+  EXPECT_EQ(m->facets.size(), size_t(r.counts.at("facets")));
+  EXPECT_EQ(m->cameras.size(), 24u);
+  auto tex = read_rgbaz(job.out / m->cameras[3].texture);
+  ASSERT_TRUE(tex) << tex.error().message;
+}
+
+TEST(ReconstructRig, FuzzyStrandsAreCovered) {
+  ReconstructJob job;
+  job.session = session("fuzzy", 24);
+  job.out = scratch() / "fuzzy_model";
+  const Report r = reconstruct(job);
+  print("fuzzy", r);
+  EXPECT_GE(r.errors.at("strand_pixels_covered_fraction"), 0.95);
+  EXPECT_GT(r.counts.at("facets_fuzzy"), 100);
+  // Fuzzy regions get the larger facets.
+  EXPECT_GT(r.counts.at("facets_coarse"), r.counts.at("facets_fine"));
+}
+
+TEST(ReconstructRig, StiffCases) {
+  const fs::path base = session("blob", 8, 320, 240);
+  // A copy whose view 2 has no valid depth at all.
+  const fs::path zero = scratch() / "blob_zero_depth";
+  fs::remove_all(zero);
+  fs::copy(base, zero, fs::copy_options::recursive);
+  {
+    auto s = load_session(zero);
+    ASSERT_TRUE(s);
+    const fs::path d = zero / s->frames[2].depth;
+    auto img = read_image_u16(d);
+    ASSERT_TRUE(img);
+    std::fill(img->data.begin(), img->data.end(), 0);
+    ASSERT_TRUE(write_image(d, *img));
+  }
+  ReconstructJob job;
+  job.session = zero;
+  job.out = scratch() / "blob_zero_model";
+  Report r = reconstruct(job);
+  print("zero depth view", r);
+  EXPECT_EQ(r.skipped.at("views_without_depth"), 1);
+  EXPECT_FALSE(r.warnings.empty());
+  EXPECT_GT(r.counts.at("facets"), 100);
+
+  // One camera only: every other view held out.
+  job.session = base;
+  job.out = scratch() / "blob_one_camera";
+  job.holdout = {1, 2, 3, 4, 5, 6, 7};
+  r = reconstruct(job);
+  print("one camera", r);
+  EXPECT_EQ(r.skipped.at("held_out_views"), 7);
+  EXPECT_GT(r.counts.at("facets"), 10);
+  EXPECT_EQ(r.counts.at("facets_fine"), 0);  // no agreement to measure: all coarse
+  auto m = load_model(job.out);
+  ASSERT_TRUE(m);
+  for (const auto& c : m->cameras) EXPECT_EQ(c.session_frame, 0);
+
+  // w below a pixel: a warning, a finite model.
+  job.holdout.clear();
+  job.out = scratch() / "blob_fine";
+  job.voxel_m = 0.001;
+  r = reconstruct(job);
+  print("w below a pixel", r);
+  bool warned = false;
+  for (const auto& w : r.warnings) warned = warned || w.find("below one input pixel") != std::string::npos;
+  EXPECT_TRUE(warned);
+  EXPECT_GT(r.counts.at("facets"), 1000);
+
+  // w of the whole object: a handful of facets, all finite.
+  job.out = scratch() / "blob_huge";
+  job.voxel_m = 0.15;
+  r = reconstruct(job);
+  print("w of the object", r);
+  m = load_model(job.out);
+  ASSERT_TRUE(m) << m.error().message;
+  EXPECT_GE(m->facets.size(), 1u);
+  EXPECT_LT(m->facets.size(), 100u);
+
+  // A frame index out of range and a bad geometry mode are clear errors.
+  job.voxel_m.reset();
+  job.holdout = {8};
+  auto bad = run_reconstruct_job(job);
+  ASSERT_FALSE(bad);
+  EXPECT_NE(bad.error().message.find("--holdout 8"), std::string::npos);
+  job.holdout.clear();
+  job.geometry = "laser";
+  EXPECT_FALSE(run_reconstruct_job(job));
+}
