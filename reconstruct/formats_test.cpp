@@ -127,3 +127,31 @@ TEST_F(ModelFiles, InconsistenciesAreRejected) {
 
 }  // namespace
 }  // namespace s2r
+
+TEST_F(ModelFiles, OctreeRoundTripAndBrokenLinks) {
+  auto m = load_model(dir_);
+  ASSERT_TRUE(m);
+  EXPECT_TRUE(m->octree.empty());
+  // A root with two leaf children.
+  OctreeRecord root{{0, 0, 0.1f}, {0, 0, 1}, 0.2f, 0.001f, {0, 0, 0}, 1, 0, 2, 0};
+  OctreeRecord leaf{{0, 0, 0.1f}, {0, 0, 1}, 0.1f, 0.f, {0, 0, 0}, kNoChild, 0x10, 0, 1};
+  m->octree = {root, leaf, leaf};
+  m->octree_max_level = 1;
+  ASSERT_TRUE(save_model(dir_, *m));
+  auto back = load_model(dir_);
+  ASSERT_TRUE(back) << back.error().message;
+  ASSERT_EQ(back->octree.size(), 3u);
+  EXPECT_EQ(back->octree[0].first_child, 1u);
+  EXPECT_EQ(back->octree[2].edge_flags, 0x10);
+  // A child range past the end, a child on the wrong level, a cone beyond pi.
+  for (int bad = 0; bad < 3; ++bad) {
+    Model broken = *back;
+    if (bad == 0) broken.octree[0].children = 3;
+    if (bad == 1) broken.octree[1].level = 0;
+    if (bad == 2) broken.octree[1].cone = 4.f;
+    ASSERT_TRUE(save_model(dir_, broken));
+    auto r = load_model(dir_);
+    ASSERT_FALSE(r) << bad;
+    EXPECT_NE(r.error().message.find("octree.bin: node"), std::string::npos) << r.error().message;
+  }
+}

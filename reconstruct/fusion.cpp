@@ -463,6 +463,13 @@ std::vector<EvidenceVoxel> SparseVolume::evidence(double reliability_sigma_m) co
   return out;
 }
 
+std::vector<std::pair<Eigen::Vector3i, float>> SparseVolume::samples() const {
+  std::vector<std::pair<Eigen::Vector3i, float>> out;
+  for (auto it = impl_->tsdf->cbeginValueOn(); it; ++it)
+    if ((*it)[1] > 0 && it.isVoxelValue()) out.push_back({Eigen::Vector3i(it.getCoord().x(), it.getCoord().y(), it.getCoord().z()), (*it)[0]});
+  return out;
+}
+
 Mesh SparseVolume::surface_mesh() const {
   const Impl& m = *impl_;
   Mesh mesh;

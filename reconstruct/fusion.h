@@ -99,6 +99,9 @@ class SparseVolume {
   // agreement counts as weak (reliability exp(-1/2) per view count factor).
   std::vector<EvidenceVoxel> evidence(double reliability_sigma_m) const;
 
+  // Every observed voxel's fused signed distance (the octree's samples).
+  std::vector<std::pair<Eigen::Vector3i, float>> samples() const;
+
   // The fused surface as triangles (OpenVDB volume-to-mesh at sdf = 0, limited
   // to observed surface voxels) plus the fuzzy/hull voxels' closed hull.
   Mesh surface_mesh() const;

@@ -4,7 +4,8 @@
 //                           payload files with record counts and CRC-32
 //   MODEL/facets.bin        FacetRecord[] (little-endian, 40 bytes each)
 //   MODEL/facet_cameras.bin uint32[]: camera indices, FacetRecord ranges into it
-//   MODEL/cameras/NNNN.exr  per-camera RGBA + depth textures (later stages)
+//   MODEL/octree.bin        OctreeRecord[] (optional): the surface octree, breadth first
+//   MODEL/cameras/NNNN.exr  per-camera RGBA + distance textures
 //
 // Every payload starts with a 24-byte header: magic "S2RB", payload version,
 // record size, record count; and ends with the CRC-32 of everything before.
@@ -36,6 +37,24 @@ struct FacetRecord {
 };
 static_assert(sizeof(FacetRecord) == 40, "FacetRecord is an on-disk layout");
 
+// One node of the surface octree (reconstruct/octree.h), 52 bytes. Children
+// are contiguous at first_child (0xffffffff: a leaf); a node covers the cells
+// origin .. origin + 2^(max_level - level) - 1, cell (i,j,k) lying between the
+// samples at voxel centres (i..i+1, j..j+1, k..k+1) * voxel.
+struct OctreeRecord {
+  float vertex[3];        // representative vertex, world metres
+  float normal[3];        // normal cone axis (unit)
+  float cone;             // cone half-angle, radians, [0, pi]
+  float shape_error;      // dE, metres
+  int32_t origin[3];      // first cell
+  uint32_t first_child;
+  uint16_t edge_flags;    // leaves: the 12 cell edges that cross the surface
+  uint8_t children;
+  uint8_t level;          // 0 = root
+};
+static_assert(sizeof(OctreeRecord) == 52, "OctreeRecord is an on-disk layout");
+inline constexpr uint32_t kNoChild = 0xffffffffu;
+
 struct ModelCamera {
   Intrinsics intrinsics;
   Eigen::Isometry3d world_from_camera = Eigen::Isometry3d::Identity();
@@ -49,6 +68,8 @@ struct Model {
   std::vector<ModelCamera> cameras;
   std::vector<FacetRecord> facets;
   std::vector<uint32_t> facet_cameras;
+  std::vector<OctreeRecord> octree;  // empty when not built
+  int octree_max_level = 0;
   std::optional<std::string> patch_mesh;  // relative PLY path
   std::optional<std::string> environment;  // relative path
 };

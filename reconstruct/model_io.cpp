@@ -82,11 +82,17 @@ Status save_model(const fs::path& dir, const Model& m) {
               {"cameras", cams},
               {"payloads", {{"facets", {{"file", "facets.bin"}, {"records", m.facets.size()}}},
                             {"facet_cameras", {{"file", "facet_cameras.bin"}, {"records", m.facet_cameras.size()}}}}}};
+  if (!m.octree.empty()) {
+    doc["payloads"]["octree"] = {{"file", "octree.bin"}, {"records", m.octree.size()}};
+    doc["octree_max_level"] = m.octree_max_level;
+  }
   if (m.patch_mesh) doc["patch_mesh"] = *m.patch_mesh;
   if (m.environment) doc["environment"] = *m.environment;
   // Payloads first, header last: a model.json always describes complete payloads.
   if (auto st = write_file_atomic(dir / "facets.bin", pack(m.facets)); !st) return st;
   if (auto st = write_file_atomic(dir / "facet_cameras.bin", pack(m.facet_cameras)); !st) return st;
+  if (!m.octree.empty())
+    if (auto st = write_file_atomic(dir / "octree.bin", pack(m.octree)); !st) return st;
   return write_file_atomic(dir / "model.json", dump_json(doc));
 }
 
@@ -135,6 +141,14 @@ Result<Model> load_model(const fs::path& dir) {
     if (!fc) return std::unexpected(fc.error());
     m.facets = std::move(*facets);
     m.facet_cameras = std::move(*fc);
+    if (pay.has("octree")) {
+      const uint64_t no = static_cast<uint64_t>(pay.at("octree").integer("records"));
+      m.octree_max_level = static_cast<int>(doc.integer("octree_max_level"));
+      if (m.octree_max_level < 0 || m.octree_max_level > 30) doc.error("octree_max_level", "must be in 0..30");
+      auto oct = unpack<OctreeRecord>(dir / "octree.bin", no);
+      if (!oct) return std::unexpected(oct.error());
+      m.octree = std::move(*oct);
+    }
   } catch (const FormatError& e) {
     return fail(e.what());
   }
@@ -154,6 +168,24 @@ Result<Model> load_model(const fs::path& dir) {
     if (m.facet_cameras[i] >= m.cameras.size())
       return fail((dir / "facet_cameras.bin").string() + ": entry " + std::to_string(i) + " names camera " +
                   std::to_string(m.facet_cameras[i]) + " of " + std::to_string(m.cameras.size()));
+  const std::string ob = (dir / "octree.bin").string();
+  for (size_t i = 0; i < m.octree.size(); ++i) {
+    const auto& n = m.octree[i];
+    const std::string at = ob + ": node " + std::to_string(i) + ": ";
+    for (float v : {n.vertex[0], n.vertex[1], n.vertex[2], n.normal[0], n.normal[1], n.normal[2], n.cone, n.shape_error})
+      if (!std::isfinite(v)) return fail(at + "non-finite value");
+    if (n.cone < 0 || n.cone > 3.1416f) return fail(at + "cone angle outside [0, pi]");
+    if (n.shape_error < 0) return fail(at + "negative shape error");
+    if (n.level > m.octree_max_level) return fail(at + "level beyond octree_max_level");
+    if (n.first_child == kNoChild) {
+      if (n.children != 0) return fail(at + "children without first_child");
+      continue;
+    }
+    if (n.children == 0 || n.children > 8 || n.first_child <= i || uint64_t(n.first_child) + n.children > m.octree.size())
+      return fail(at + "child range [" + std::to_string(n.first_child) + ", +" + std::to_string(n.children) + ") invalid");
+    for (uint32_t c = n.first_child; c < n.first_child + n.children; ++c)
+      if (m.octree[c].level != n.level + 1) return fail(at + "child " + std::to_string(c) + " is not one level down");
+  }
   return m;
 }
 

@@ -16,6 +16,7 @@
 #include "reconstruct/fusion.h"
 #include "reconstruct/microfacets.h"
 #include "reconstruct/model.h"
+#include "reconstruct/octree.h"
 #include "reconstruct/poses.h"
 #include "reconstruct/rig_eval.h"
 
@@ -397,10 +398,40 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   }
   if (bounds.isEmpty()) bounds = Eigen::AlignedBox3d(centre, centre);
   model.bounds = bounds;
+  // The surface octree and its finest crack-free patch mesh (the textured-mesh baseline).
+  {
+    std::vector<SdfSample> samples;
+    for (const auto& [ijk, d] : volume.samples()) samples.push_back({ijk, d});
+    const SurfaceOctree tree = SurfaceOctree::build(samples, w0);
+    for (const auto& n : tree.nodes()) {
+      OctreeRecord r{};
+      for (int k = 0; k < 3; ++k) r.vertex[k] = n.vertex[k], r.normal[k] = n.normal[k], r.origin[k] = n.origin[k];
+      r.cone = n.cone;
+      r.shape_error = n.shape_error;
+      r.first_child = n.first_child < 0 ? kNoChild : uint32_t(n.first_child);
+      r.children = n.children;
+      r.edge_flags = n.edge_flags;
+      r.level = uint8_t(n.level);
+      model.octree.push_back(r);
+    }
+    model.octree_max_level = tree.max_level();
+    rep.counts["octree_nodes"] = double(tree.nodes().size());
+    rep.counts["octree_leaves"] = double(tree.leaves());
+    rep.counts["octree_levels"] = double(tree.max_level() + 1);
+    Mesh patches = tree.patch_mesh();
+    rep.counts["patch_triangles"] = double(patches.faces.size());
+    rep.counts["patch_boundary_edges"] = double(boundary_edges(patches));
+    if (mode == "hull") rep.skipped["octree_without_depth_surface"] = 1;
+    if (!patches.faces.empty()) {
+      patches.compute_vertex_normals();
+      if (auto st2 = write_ply_mesh(job.out / "patches.ply", patches); !st2) return std::unexpected(st2.error());
+      model.patch_mesh = "patches.ply";
+    }
+  }
+  timer.lap("octree");
   if (!surface.faces.empty()) {
     surface.compute_vertex_normals();
     if (auto st2 = write_ply_mesh(job.out / "surface.ply", surface); !st2) return std::unexpected(st2.error());
-    model.patch_mesh = "surface.ply";
   }
   if (auto st2 = save_model(job.out, model); !st2) return std::unexpected(st2.error());
   timer.lap("write");

@@ -1,0 +1,266 @@
+#include "reconstruct/octree.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <map>
+#include <numbers>
+#include <optional>
+#include <unordered_map>
+
+namespace s2r {
+
+namespace {
+
+uint64_t pack(const Eigen::Vector3i& v) {
+  constexpr int64_t off = int64_t(1) << 20;
+  return (uint64_t(int64_t(v.x()) + off) << 42) | (uint64_t(int64_t(v.y()) + off) << 21) | uint64_t(int64_t(v.z()) + off);
+}
+
+// acos with its argument clamped: rounding puts dot products of unit vectors
+// just outside [-1, 1].
+float safe_acos(float x) { return std::acos(std::clamp(x, -1.f, 1.f)); }
+
+struct Leaf {
+  Eigen::Vector3i cell;
+  Eigen::Vector3d sum_p = Eigen::Vector3d::Zero();
+  std::vector<Eigen::Vector3f> normals;
+  uint16_t flags = 0;
+};
+
+struct Tmp {
+  Eigen::Vector3i origin;
+  std::vector<int> children;  // indices into the next level
+  int leaf = -1;              // finest level: index into leaves
+};
+
+}  // namespace
+
+SurfaceOctree SurfaceOctree::build(const std::vector<SdfSample>& samples, double voxel, double max_jump_voxels) {
+  SurfaceOctree t;
+  t.voxel_ = voxel;
+  std::unordered_map<uint64_t, float> sdf;
+  sdf.reserve(samples.size() * 2);
+  for (const auto& s : samples)
+    if (std::isfinite(s.sdf)) sdf[pack(s.ijk)] = s.sdf;
+  auto get = [&](const Eigen::Vector3i& p) -> std::optional<float> {
+    auto it = sdf.find(pack(p));
+    return it == sdf.end() ? std::nullopt : std::optional<float>(it->second);
+  };
+  auto gradient = [&](const Eigen::Vector3i& p, float sp) {
+    Eigen::Vector3f g = Eigen::Vector3f::Zero();
+    for (int a = 0; a < 3; ++a) {
+      const auto lo = get(p - Eigen::Vector3i::Unit(a)), hi = get(p + Eigen::Vector3i::Unit(a));
+      if (lo && hi) g[a] = (*hi - *lo) / 2;
+      else if (hi) g[a] = *hi - sp;
+      else if (lo) g[a] = sp - *lo;
+    }
+    return g;
+  };
+
+  // Crossing edges and the leaf cells around them.
+  std::unordered_map<uint64_t, int> leaf_of;
+  std::vector<Leaf> leaves;
+  std::vector<std::array<int, 4>> edge_leaf;  // leaves index, cyclic order around the edge
+  for (const auto& s : samples) {
+    const Eigen::Vector3i p = s.ijk;
+    const float sp = s.sdf;
+    if (!std::isfinite(sp)) continue;
+    for (int a = 0; a < 3; ++a) {
+      const auto sq = get(p + Eigen::Vector3i::Unit(a));
+      if (!sq || ((sp < 0) == (*sq < 0)) || std::abs(sp - *sq) > max_jump_voxels * voxel) continue;
+      const float tt = sp / (sp - *sq);
+      const Eigen::Vector3d point = (p.cast<double>() + double(tt) * Eigen::Vector3d::Unit(a)) * voxel;
+      Eigen::Vector3f n = (1 - tt) * gradient(p, sp) + tt * gradient(p + Eigen::Vector3i::Unit(a), *sq);
+      n = n.norm() > 1e-12f ? Eigen::Vector3f(n.normalized()) : Eigen::Vector3f(Eigen::Vector3f::Unit(a) * (sp < 0 ? 1.f : -1.f));
+      const int b = (a + 1) % 3, c = (a + 2) % 3;
+      std::array<int, 4> ids{};
+      const int order[4][2] = {{0, 0}, {1, 0}, {1, 1}, {0, 1}};  // counter-clockwise seen from +a
+      for (int k = 0; k < 4; ++k) {
+        const int db = order[k][0], dc = order[k][1];
+        const Eigen::Vector3i cell = p - db * Eigen::Vector3i::Unit(b) - dc * Eigen::Vector3i::Unit(c);
+        auto [it, fresh] = leaf_of.try_emplace(pack(cell), int(leaves.size()));
+        if (fresh) leaves.push_back({cell});
+        Leaf& l = leaves[size_t(it->second)];
+        l.sum_p += point;
+        l.normals.push_back(n);
+        l.flags |= uint16_t(1u << (a * 4 + db + 2 * dc));
+        ids[size_t(k)] = it->second;
+      }
+      t.edges_.push_back({p, uint8_t(a), sp < 0});
+      edge_leaf.push_back(ids);
+    }
+  }
+  t.leaf_count_ = leaves.size();
+  if (leaves.empty()) return t;
+
+  // Levels, bottom-up.
+  Eigen::Vector3i lo = leaves[0].cell, hi = leaves[0].cell;
+  for (const auto& l : leaves) lo = lo.cwiseMin(l.cell), hi = hi.cwiseMax(l.cell);
+  t.base_ = lo;
+  const int extent = (hi - lo).maxCoeff() + 1;
+  while ((1 << t.max_level_) < extent) ++t.max_level_;
+  const int L = t.max_level_;
+  std::vector<std::vector<Tmp>> level(size_t(L) + 1);
+  for (size_t i = 0; i < leaves.size(); ++i) level[size_t(L)].push_back({leaves[i].cell - lo, {}, int(i)});
+  for (int l = L - 1; l >= 0; --l) {
+    std::unordered_map<uint64_t, int> parent;
+    const int shift = L - l;
+    for (size_t i = 0; i < level[size_t(l + 1)].size(); ++i) {
+      const Eigen::Vector3i o = level[size_t(l + 1)][i].origin;
+      const Eigen::Vector3i po((o.x() >> shift) << shift, (o.y() >> shift) << shift, (o.z() >> shift) << shift);
+      auto [it, fresh] = parent.try_emplace(pack(po), int(level[size_t(l)].size()));
+      if (fresh) level[size_t(l)].push_back({po, {}, -1});
+      level[size_t(l)][size_t(it->second)].children.push_back(int(i));
+    }
+  }
+
+  // Breadth-first layout: children contiguous, parents before children.
+  std::vector<std::vector<int>> index(size_t(L) + 1);
+  for (int l = 0; l <= L; ++l) index[size_t(l)].assign(level[size_t(l)].size(), -1);
+  std::vector<std::pair<int, int>> order;  // (level, tmp index)
+  order.push_back({0, 0});
+  index[0][0] = 0;
+  t.nodes_.push_back({});
+  for (size_t q = 0; q < order.size(); ++q) {
+    const auto [l, i] = order[q];
+    const Tmp& tmp = level[size_t(l)][size_t(i)];
+    OctreeNode& n = t.nodes_[q];
+    n.origin = tmp.origin;
+    n.level = l;
+    n.size = 1 << (L - l);
+    if (tmp.children.empty()) continue;
+    n.first_child = int32_t(t.nodes_.size());
+    n.children = uint8_t(tmp.children.size());
+    for (int c : tmp.children) {
+      index[size_t(l + 1)][size_t(c)] = int(t.nodes_.size());
+      OctreeNode child;
+      child.parent = int32_t(q);
+      t.nodes_.push_back(child);
+      order.push_back({l + 1, c});
+    }
+  }
+  std::vector<int> leaf_node(leaves.size());
+  for (size_t i = 0; i < level[size_t(L)].size(); ++i) leaf_node[size_t(level[size_t(L)][i].leaf)] = index[size_t(L)][i];
+  t.edge_cells_.reserve(edge_leaf.size() * 4);
+  for (const auto& ids : edge_leaf)
+    for (int id : ids) t.edge_cells_.push_back(leaf_node[size_t(id)]);
+
+  // Node statistics, children before parents (reverse breadth-first order).
+  std::vector<std::vector<int>> below(t.nodes_.size());  // finest descendants
+  for (size_t q = t.nodes_.size(); q-- > 0;) {
+    OctreeNode& n = t.nodes_[q];
+    const auto [l, i] = order[q];
+    if (n.children == 0) {
+      const Leaf& lf = leaves[size_t(level[size_t(l)][size_t(i)].leaf)];
+      n.crossings = uint32_t(lf.normals.size());
+      n.vertex = (lf.sum_p / double(lf.normals.size())).cast<float>();
+      Eigen::Vector3f sum = Eigen::Vector3f::Zero();
+      for (const auto& m : lf.normals) sum += m;
+      n.normal = sum.norm() > 1e-6f ? Eigen::Vector3f(sum.normalized()) : lf.normals.front();
+      n.cone = 0;
+      for (const auto& m : lf.normals) n.cone = std::max(n.cone, safe_acos(n.normal.dot(m)));
+      n.edge_flags = lf.flags;
+      n.shape_error = 0;
+      below[q] = {int(q)};
+      continue;
+    }
+    Eigen::Vector3d vsum = Eigen::Vector3d::Zero();
+    Eigen::Vector3f nsum = Eigen::Vector3f::Zero();
+    uint32_t count = 0;
+    float child_error = 0;
+    for (int c = n.first_child; c < n.first_child + n.children; ++c) {
+      const OctreeNode& ch = t.nodes_[size_t(c)];
+      vsum += ch.vertex.cast<double>() * ch.crossings;
+      count += ch.crossings;
+      nsum += ch.normal;
+      child_error = std::max(child_error, ch.shape_error);
+      below[q].insert(below[q].end(), below[size_t(c)].begin(), below[size_t(c)].end());
+    }
+    n.crossings = count;
+    n.vertex = (vsum / double(count)).cast<float>();
+    // Opposite children (a thin sheet seen from both sides): the sum vanishes
+    // and the cone opens to pi.
+    const bool opposite = nsum.norm() < 1e-4f;
+    n.normal = opposite ? t.nodes_[size_t(n.first_child)].normal : Eigen::Vector3f(nsum.normalized());
+    n.cone = 0;
+    for (int c = n.first_child; c < n.first_child + n.children; ++c) {
+      const OctreeNode& ch = t.nodes_[size_t(c)];
+      n.cone = std::max(n.cone, safe_acos(n.normal.dot(ch.normal)) + ch.cone);
+    }
+    n.cone = opposite ? float(std::numbers::pi) : std::min(n.cone, float(std::numbers::pi));
+    float top = -std::numeric_limits<float>::infinity(), bottom = std::numeric_limits<float>::infinity();
+    for (int leaf : below[q]) {
+      const float h = n.normal.dot(t.nodes_[size_t(leaf)].vertex - n.vertex);
+      top = std::max(top, h), bottom = std::min(bottom, h);
+    }
+    n.shape_error = std::max(top - bottom, child_error);
+    for (int c = n.first_child; c < n.first_child + n.children; ++c) below[size_t(c)].clear(), below[size_t(c)].shrink_to_fit();
+  }
+  return t;
+}
+
+std::vector<int> SurfaceOctree::cut(double max_shape_error_m) const {
+  std::vector<int> out, stack;
+  if (nodes_.empty()) return out;
+  stack.push_back(0);
+  while (!stack.empty()) {
+    const int i = stack.back();
+    stack.pop_back();
+    const OctreeNode& n = nodes_[size_t(i)];
+    if (n.children == 0 || n.shape_error <= max_shape_error_m) {
+      out.push_back(i);
+      continue;
+    }
+    for (int c = n.first_child; c < n.first_child + n.children; ++c) stack.push_back(c);
+  }
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+Mesh SurfaceOctree::patch_mesh(const std::vector<int>& cut) const {
+  Mesh mesh;
+  if (nodes_.empty()) return mesh;
+  // Every node's representative in the cut: itself when selected, else its
+  // parent's (parents come first); leaves with no selected ancestor stay themselves.
+  std::vector<int> rep(nodes_.size(), -1);
+  std::vector<uint8_t> selected(nodes_.size(), 0);
+  for (int i : cut) selected[size_t(i)] = 1;
+  for (size_t i = 0; i < nodes_.size(); ++i) {
+    if (selected[i]) rep[i] = int(i);
+    else if (nodes_[i].parent >= 0) rep[i] = rep[size_t(nodes_[i].parent)];
+    if (rep[i] < 0 && nodes_[i].children == 0) rep[i] = int(i);
+  }
+  std::unordered_map<int, int> vertex_of;
+  auto vid = [&](int node) {
+    auto [it, fresh] = vertex_of.try_emplace(node, int(mesh.vertices.size()));
+    if (fresh) mesh.vertices.push_back(nodes_[size_t(node)].vertex);
+    return it->second;
+  };
+  for (size_t e = 0; e < edges_.size(); ++e) {
+    int v[4];
+    for (int k = 0; k < 4; ++k) v[k] = vid(rep[size_t(edge_cells_[e * 4 + size_t(k)])]);
+    // Split as at the finest level, then drop what the cut collapsed: the
+    // map from fine to coarse vertices keeps a closed surface closed.
+    for (const auto& tri : {Eigen::Vector3i(v[0], v[1], v[2]), Eigen::Vector3i(v[0], v[2], v[3])}) {
+      if (tri[0] == tri[1] || tri[1] == tri[2] || tri[0] == tri[2]) continue;
+      mesh.faces.push_back(edges_[e].inside_first ? tri : Eigen::Vector3i(tri[0], tri[2], tri[1]));
+    }
+  }
+  return mesh;
+}
+
+size_t boundary_edges(const Mesh& mesh) {
+  std::map<std::pair<int, int>, int> count;
+  for (const auto& f : mesh.faces)
+    for (int k = 0; k < 3; ++k) {
+      int a = f[k], b = f[(k + 1) % 3];
+      if (a > b) std::swap(a, b);
+      ++count[{a, b}];
+    }
+  size_t odd = 0;
+  for (const auto& [e, c] : count) odd += c % 2;
+  return odd;
+}
+
+}  // namespace s2r

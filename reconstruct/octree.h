@@ -1,0 +1,87 @@
+// The octree over the fused surface (DESIGN.md section 7, seed 000).
+//
+// Samples are the fused signed distances at voxel centres; a cell is the cube
+// between 8 samples (dual to the voxels). A cell holds surface when one of its
+// 12 edges joins two observed samples of opposite sign (its edge-crossing
+// flags F_e). Leaves are such cells; each level up merges 2x2x2 children.
+// Per node:
+//   v      representative vertex: the mean of the edge-crossing points below it
+//   (n,th) normal cone, bottom-up: n = normalize(sum n_c), th = max(acos(n.n_c) + th_c)
+//          (a leaf's cone holds the normals at its own crossings)
+//   dE     shape error along n over the finest descendants,
+//          max n.(v_i - v) - min n.(v_j - v), raised to the children's dE so it
+//          never grows toward the leaves
+// A cut of the tree gives a multi-scale patch mesh: every crossing edge of the
+// finest level makes a quad between the representative vertices of the four
+// cells around it, each replaced by its ancestor in the cut (collapsed quads
+// become triangles or vanish). All patches share vertices, so nodes of
+// different levels meet without cracks: a closed surface stays closed.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "core/mesh.h"
+
+namespace s2r {
+
+struct SdfSample {
+  Eigen::Vector3i ijk;  // centre = ijk * voxel
+  float sdf = 0;        // metres, negative inside
+};
+
+struct OctreeNode {
+  Eigen::Vector3i origin = Eigen::Vector3i::Zero();  // first cell it covers (cell units)
+  int level = 0;        // 0 = root
+  int size = 1;         // cells per side: 2^(max_level - level)
+  Eigen::Vector3f vertex = Eigen::Vector3f::Zero();
+  Eigen::Vector3f normal = Eigen::Vector3f::UnitZ();
+  float cone = 0;       // half-angle, radians, in [0, pi]
+  float shape_error = 0;  // dE, metres
+  uint16_t edge_flags = 0;  // leaves: which of the 12 cell edges cross the surface
+  int32_t parent = -1;
+  int32_t first_child = -1;  // children are contiguous
+  uint8_t children = 0;
+  uint32_t crossings = 0;    // crossing points below the node
+};
+
+class SurfaceOctree {
+ public:
+  // `max_jump_voxels`: samples whose distances differ by more than this many
+  // voxels across an edge are not a crossing (a silhouette, not a surface).
+  static SurfaceOctree build(const std::vector<SdfSample>& samples, double voxel, double max_jump_voxels = 2);
+
+  const std::vector<OctreeNode>& nodes() const { return nodes_; }
+  int max_level() const { return max_level_; }
+  double voxel() const { return voxel_; }
+  size_t leaves() const { return leaf_count_; }
+  size_t crossings() const { return edges_.size(); }
+
+  // The nodes whose shape error is at most `max_shape_error_m` (or leaves),
+  // taken from the root down: a cut through the tree.
+  std::vector<int> cut(double max_shape_error_m) const;
+  // The crack-free patch mesh of a cut (all leaves when empty).
+  Mesh patch_mesh(const std::vector<int>& cut = {}) const;
+
+ private:
+  struct CrossingEdge {
+    Eigen::Vector3i p;  // lower sample
+    uint8_t axis;
+    bool inside_first;  // sdf(p) < 0
+  };
+  double voxel_ = 0;
+  int max_level_ = 0;
+  Eigen::Vector3i base_ = Eigen::Vector3i::Zero();  // cell coordinates are relative to this
+  size_t leaf_count_ = 0;
+  std::vector<OctreeNode> nodes_;
+  std::vector<CrossingEdge> edges_;
+  std::vector<int32_t> edge_cells_;  // 4 leaf node indices per crossing edge
+};
+
+// Boundary edges of a triangle mesh (used by an odd number of triangles): 0
+// for a closed surface.
+size_t boundary_edges(const Mesh& mesh);
+
+}  // namespace s2r
