@@ -125,9 +125,6 @@ TEST_F(ModelFiles, InconsistenciesAreRejected) {
   EXPECT_NE(m.error().message.find("cameras[0].texture"), std::string::npos) << m.error().message;
 }
 
-}  // namespace
-}  // namespace s2r
-
 TEST_F(ModelFiles, OctreeRoundTripAndBrokenLinks) {
   auto m = load_model(dir_);
   ASSERT_TRUE(m);
@@ -155,3 +152,7 @@ TEST_F(ModelFiles, OctreeRoundTripAndBrokenLinks) {
     EXPECT_NE(r.error().message.find("octree.bin: node"), std::string::npos) << r.error().message;
   }
 }
+
+
+}  // namespace
+}  // namespace s2r
