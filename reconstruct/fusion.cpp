@@ -467,6 +467,12 @@ std::vector<std::pair<Eigen::Vector3i, float>> SparseVolume::samples() const {
   std::vector<std::pair<Eigen::Vector3i, float>> out;
   for (auto it = impl_->tsdf->cbeginValueOn(); it; ++it)
     if ((*it)[1] > 0 && it.isVoxelValue()) out.push_back({Eigen::Vector3i(it.getCoord().x(), it.getCoord().y(), it.getCoord().z()), (*it)[0]});
+  if (out.empty() && impl_->hull_only && impl_->hull && impl_->hull->activeVoxelCount() > 0) {
+    // Silhouettes only: the signed distance to the hull's boundary.
+    auto ls = openvdb::tools::topologyToLevelSet(*impl_->hull, 3, 0, 0, 0);
+    for (auto it = ls->cbeginValueOn(); it; ++it)
+      if (it.isVoxelValue()) out.push_back({Eigen::Vector3i(it.getCoord().x(), it.getCoord().y(), it.getCoord().z()), *it});
+  }
   return out;
 }
 

@@ -99,7 +99,8 @@ class SparseVolume {
   // agreement counts as weak (reliability exp(-1/2) per view count factor).
   std::vector<EvidenceVoxel> evidence(double reliability_sigma_m) const;
 
-  // Every observed voxel's fused signed distance (the octree's samples).
+  // Every observed voxel's fused signed distance (the octree's samples); with
+  // silhouettes only, the distance to the hull's boundary.
   std::vector<std::pair<Eigen::Vector3i, float>> samples() const;
 
   // The fused surface as triangles (OpenVDB volume-to-mesh at sdf = 0, limited

@@ -246,7 +246,18 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
     w0 = *job.voxel_m;
     rep.params["voxel_mode"] = std::string("given");
   } else {
-    const double w_max = voxel_for_error(job.target_error_px, focal, view_distance, delta);
+    // Densely spaced cameras allow large facets by the bound alone; a facet is
+    // still kept within kMaxFacetPixels input pixels, beyond which it blurs
+    // detail the photos hold and its clipping window (w/2) stops telling
+    // surfaces apart.
+    constexpr double kMaxFacetPixels = 8;
+    double w_max = voxel_for_error(job.target_error_px, focal, view_distance, delta);
+    if (w_max > kMaxFacetPixels * pixel_m) {
+      w_max = kMaxFacetPixels * pixel_m;
+      rep.params["voxel_limited_by"] = std::string("8 input pixels (cameras closer than the bound needs)");
+    } else {
+      rep.params["voxel_limited_by"] = std::string("error bound");
+    }
     w0 = job.per_region ? w_max / 2 : w_max;
     rep.params["voxel_mode"] = std::string("auto");
     rep.params["voxel_bound_m"] = w_max;
@@ -421,7 +432,6 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
     Mesh patches = tree.patch_mesh();
     rep.counts["patch_triangles"] = double(patches.faces.size());
     rep.counts["patch_boundary_edges"] = double(boundary_edges(patches));
-    if (mode == "hull") rep.skipped["octree_without_depth_surface"] = 1;
     if (!patches.faces.empty()) {
       patches.compute_vertex_normals();
       if (auto st2 = write_ply_mesh(job.out / "patches.ply", patches); !st2) return std::unexpected(st2.error());
