@@ -13,6 +13,12 @@
 #include "core/paths.h"
 #include "core/sweep.h"
 #include "reconstruct/icp_peer.h"
+#include "reconstruct/reconstruct_job.h"
+#include "reconstruct/rig_eval.h"
+#include "core/atomic_file.h"
+
+#include <nlohmann/json.hpp>
+#include <spdlog/fmt/fmt.h>
 #include "reconstruct/registration_input.h"
 
 namespace s2r::cli {
@@ -296,6 +302,122 @@ int bench_register(const fs::path& out, int seeds) {
   return finish(rep, out / "report.json");
 }
 
+// Reconstruction error against build time on the rig (known surface), over
+// the facet size w; the peer in the same run is Open3D's ScalableTSDFVolume +
+// marching cubes on the same depth frames, poses and voxel size
+// (scripts/open3d_tsdf_peer.py, python3-open3d).
+int bench_reconstruct(const fs::path& out, const std::string& scene_in) {
+  Stopwatch total;
+  Report rep;
+  rep.stage = "bench.reconstruct";
+  std::error_code ec;
+  fs::create_directories(out, ec);
+  const std::string scene = scene_in == "blob" && fs::exists(data_dir() / "stanford_bunny" / "bun_zipper.ply") ? "bunny" : scene_in;
+  const fs::path session = out / "session";
+  fs::remove_all(session, ec);
+  SynthOptions so;
+  so.scene = scene;
+  so.views = 24;
+  so.seed = 3;
+  if (auto made = synth_session(so, session); !made) return error(made.error().message);
+  auto truth = load_synth_truth(session);
+  if (!truth) return error(truth.error().message);
+  auto mesh = read_ply_mesh(session / "ground_truth" / "geometry.ply");
+  if (!mesh) return error(mesh.error().message);
+  auto s = load_session(session);
+  if (!s) return error(s.error().message);
+  const fs::path peer_script = fs::path(S2R_SCRIPTS_DIR) / "open3d_tsdf_peer.py";
+  // Debian's python3-open3d lives in the system interpreter (not a pyenv or venv one).
+  const std::string python = fs::exists("/usr/bin/python3") ? "/usr/bin/python3" : "python3";
+  const bool have_peer = std::system((python + " -c 'import open3d' >/dev/null 2>&1").c_str()) == 0;
+  if (!have_peer) rep.warnings.push_back("python3-open3d is not installed: the Open3D peer is left out (scripts/setup installs it)");
+
+  SweepTable t;
+  t.columns = {"voxel_mm", "seconds", "fusion_seconds", "median_mm", "p99_mm", "within_w", "elements"};
+  std::vector<double> ratios, fusion_ratios;
+  for (double w : {0.0015, 0.002, 0.003, 0.004, 0.006}) {
+    ReconstructJob job;
+    job.session = session;
+    job.out = out / fmt::format("ours_{:.1f}mm", 1e3 * w);
+    job.voxel_m = w;
+    job.geometry = "depth";
+    job.per_region = false;
+    job.textures = false;
+    auto r = run_reconstruct_job(job);
+    if (!r) return error(r.error().message);
+    const double ours_s = r->seconds, ours_fusion = r->counts["seconds_fusion"];
+    t.row_labels.push_back("ours (OpenVDB fusion + facets + octree)");
+    t.rows.push_back({1e3 * w, ours_s, ours_fusion, 1e3 * r->errors["facet_distance_median_m"],
+                      1e3 * r->errors["facet_distance_p99_m"], r->errors["facets_within_w_fraction"], r->counts["facets"]});
+    std::fprintf(stderr, "w %.1f mm: ours %.2f s (fusion %.2f s), median %.3f mm, within w %.4f, %g facets\n", 1e3 * w, ours_s,
+                 ours_fusion, t.rows.back()[3], t.rows.back()[5], t.rows.back()[6]);
+    // The patch mesh's vertices (interpolated crossings), comparable with marching cubes' vertices.
+    if (auto patches = read_ply_mesh(job.out / "patches.ply")) {
+      std::vector<FacetRecord> pv;
+      for (const auto& v : patches->vertices) pv.push_back({{v.x(), v.y(), v.z()}, float(w), {0, 0, 0}, 0, 0, 0});
+      const SurfaceError e = facet_surface_error(pv, *mesh, w / 5);
+      t.row_labels.push_back("ours (octree patch mesh vertices)");
+      t.rows.push_back({1e3 * w, ours_s, ours_fusion, 1e3 * e.median_m, 1e3 * e.p99_m, e.within_size, double(patches->faces.size())});
+    }
+    if (!have_peer) continue;
+    nlohmann::json pj = {{"voxel", w}, {"trunc", 4 * w}, {"depth_scale", 1.0 / s->depth->unit_m}, {"depth_trunc", 5.0},
+                         {"out", (out / fmt::format("open3d_{:.1f}mm.xyz", 1e3 * w)).string()}};
+    for (size_t i = 0; i < s->frames.size(); ++i) {
+      const Eigen::Matrix4d cfw = (truth->world_from_camera[i] * truth->color_from_depth).inverse().matrix();
+      const Eigen::Matrix4d row = cfw.transpose();  // Eigen is column-major; the job is row-major
+      const std::vector<double> m(row.data(), row.data() + 16);
+      const Intrinsics& K = truth->depth;
+      pj["frames"].push_back({{"depth", s->path_of(s->frames[i].depth).string()}, {"width", K.width}, {"height", K.height},
+                              {"fx", K.fx}, {"fy", K.fy}, {"cx", K.cx}, {"cy", K.cy}, {"camera_from_world", m}});
+    }
+    const fs::path job_file = out / "open3d_job.json";
+    if (auto st = write_file_atomic(job_file, pj.dump()); !st) return error(st.error().message);
+    const std::string cmd = python + " '" + peer_script.string() + "' '" + job_file.string() + "'";
+    FILE* pipe = popen(cmd.c_str(), "r");
+    if (!pipe) return error("cannot run " + cmd);
+    std::string line;
+    char buf[4096];
+    while (std::fgets(buf, sizeof buf, pipe)) line += buf;
+    if (pclose(pipe) != 0) return error("the Open3D peer failed: " + cmd);
+    const auto res = nlohmann::json::parse(line, nullptr, false);
+    if (res.is_discarded()) return error("the Open3D peer printed no result: " + line);
+    std::vector<FacetRecord> verts;
+    {
+      const std::string xyz_path = pj["out"].get<std::string>();
+      FILE* xyz = std::fopen(xyz_path.c_str(), "r");
+      if (!xyz) return error("the Open3D peer wrote no vertices: " + xyz_path);
+      float x, y, z;
+      while (std::fscanf(xyz, "%f %f %f", &x, &y, &z) == 3) verts.push_back({{x, y, z}, float(w), {0, 0, 0}, 0, 0, 0});
+      std::fclose(xyz);
+    }
+    const SurfaceError pe = facet_surface_error(verts, *mesh, w / 5);
+    const double peer_s = res["seconds"].get<double>(), peer_fusion = res["seconds_integrate"].get<double>();
+    t.row_labels.push_back("Open3D " + res["open3d"].get<std::string>() + " ScalableTSDF + marching cubes");
+    t.rows.push_back({1e3 * w, peer_s, peer_fusion, 1e3 * pe.median_m, 1e3 * pe.p99_m, pe.within_size,
+                      res["triangles"].get<double>()});
+    ratios.push_back(ours_s / peer_s);
+    fusion_ratios.push_back(ours_fusion / peer_fusion);
+    std::fprintf(stderr, "w %.1f mm: Open3D %.2f s (integrate %.2f s), median %.3f mm, within w %.4f; time ratio ours/Open3D %.2f\n",
+                 1e3 * w, peer_s, peer_fusion, t.rows.back()[3], t.rows.back()[5], ratios.back());
+  }
+  if (auto st = t.write_csv(out / "reconstruct.csv"); !st) return error(st.error().message);
+  PlotSpec err{"Surface error vs facet size (rig " + scene + ", known surface)", "voxel / facet size w (mm)",
+               "median distance to the true surface (mm)", "voxel_mm", {"median_mm"}, true, false, false};
+  if (auto st = plot_png(t, err, out / "reconstruct_error.png"); !st) rep.warnings.push_back(st.error().message);
+  PlotSpec secs{"Build seconds vs facet size (session files to geometry)", "voxel / facet size w (mm)", "seconds",
+                "voxel_mm", {"seconds"}, true, false, true};
+  if (auto st = plot_png(t, secs, out / "reconstruct_seconds.png"); !st) rep.warnings.push_back(st.error().message);
+  PlotSpec evt{"Surface error against build time", "seconds", "median distance (mm)", "seconds", {"median_mm"}, true, true, true};
+  if (auto st = plot_png(t, evt, out / "reconstruct_error_time.png"); !st) rep.warnings.push_back(st.error().message);
+  if (!ratios.empty()) {
+    rep.errors["time_ratio_ours_over_open3d_median"] = median(ratios);
+    rep.errors["fusion_time_ratio_ours_over_open3d_median"] = median(fusion_ratios);
+  }
+  rep.params["scene"] = scene;
+  rep.seconds = total.seconds();
+  return finish(rep, out / "report.json");
+}
+
 }  // namespace
 
 void add_bench_commands(CLI::App& app) {
@@ -305,7 +427,8 @@ void add_bench_commands(CLI::App& app) {
   auto repeats = std::make_shared<int>(3);
   auto scene = std::make_shared<std::string>("blob");
   sub->add_option("stage", *stage, "rig (render time vs image size), capture (per-frame decode + write overhead), calibrate (error vs views), "
-                  "register (pose error vs seconds, Stanford ring scans, against chained PCL ICP; --repeats = seeds)")
+                  "register (pose error vs seconds, Stanford ring scans, against chained PCL ICP; --repeats = seeds), "
+                  "reconstruct (surface error and build seconds vs facet size on the rig, against Open3D TSDF + marching cubes)")
       ->required();
   sub->add_option("--out", *out, "output folder")->required();
   sub->add_option("--repeats", *repeats, "renders per point (median)")->capture_default_str();
@@ -316,7 +439,8 @@ void add_bench_commands(CLI::App& app) {
       if (*stage == "capture") return bench_capture(*out, std::max(5, *repeats * 10));
       if (*stage == "calibrate") return bench_calibrate(*out);
       if (*stage == "register") return bench_register(*out, std::max(1, *repeats));
-      std::fprintf(stderr, "s2r bench %s: not yet available in this build (only 'rig', 'capture', 'calibrate' and 'register')\n", stage->c_str());
+      if (*stage == "reconstruct") return bench_reconstruct(*out, *scene);
+      std::fprintf(stderr, "s2r bench %s: not yet available in this build (only 'rig', 'capture', 'calibrate', 'register' and 'reconstruct')\n", stage->c_str());
       return 2;
     });
   });

@@ -142,9 +142,12 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
       if (!K) return fail("frame " + std::to_string(i) + ": no colour intrinsics (session or --calibration)");
       v.K = *K;
       v.world_from_camera = *poses->world_from_camera[i];
-      auto c = load_color(s, f);
-      if (!c) return std::unexpected(c.error());
-      v.color = std::move(*c);
+      // Colour is needed for silhouettes and textures only.
+      if (job.textures || job.geometry != "depth") {
+        auto c = load_color(s, f);
+        if (!c) return std::unexpected(c.error());
+        v.color = std::move(*c);
+      }
       if (!f.depth.empty()) {
         if (!depth_K) return fail("session has depth frames but no depth intrinsics");
         auto d = load_depth(s, f);
