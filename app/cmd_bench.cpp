@@ -1,6 +1,7 @@
 // `s2r bench STAGE --out DIR`: error-vs-time sweeps, CSV + PNG + report.json,
 // with a peer measured in the same run so figures are ratios.
 #include <cstdio>
+#include <numbers>
 #include <thread>
 
 #include "app/commands.h"
@@ -13,6 +14,8 @@
 #include "core/paths.h"
 #include "core/sweep.h"
 #include "reconstruct/icp_peer.h"
+#include "reconstruct/microfacets.h"
+#include "reconstruct/model.h"
 #include "reconstruct/reconstruct_job.h"
 #include "reconstruct/rig_eval.h"
 #include "core/atomic_file.h"
@@ -409,6 +412,36 @@ int bench_reconstruct(const fs::path& out, const std::string& scene_in) {
   if (auto st = plot_png(t, secs, out / "reconstruct_seconds.png"); !st) rep.warnings.push_back(st.error().message);
   PlotSpec evt{"Surface error against build time", "seconds", "median distance (mm)", "seconds", {"median_mm"}, true, true, true};
   if (auto st = plot_png(t, evt, out / "reconstruct_error_time.png"); !st) rep.warnings.push_back(st.error().message);
+  // The error bound measured: the auto model, views turned away from every
+  // camera by alpha, texels drawn on the billboards that pass the depth clip.
+  {
+    ReconstructJob job;
+    job.session = session;
+    job.out = out / "ours_auto";
+    job.textures = false;
+    auto r = run_reconstruct_job(job);
+    if (!r) return error(r.error().message);
+    auto model = load_model(job.out);
+    if (!model) return error(model.error().message);
+    SweepTable te;
+    te.columns = {"angle_deg", "median_px", "p99_px", "max_px", "bound_ratio_max", "predicted_px"};
+    const double w_coarse = std::get<double>(r->params["voxel_coarse_m"]), z = std::get<double>(r->params["view_distance_m"]);
+    const double f = model->cameras.front().intrinsics.fx;
+    for (double a : {1.0, 2.5, 5.0, 7.5, 10.0, 15.0}) {
+      auto e = measure_texel_error(*model, session, a);
+      if (!e) return error(e.error().message);
+      const double predicted = f * texel_error_bound(w_coarse, a * std::numbers::pi / 180) / z;
+      te.row_labels.push_back("measured");
+      te.rows.push_back({a, e->median_px, e->p99_px, e->max_px, e->max_ratio, predicted});
+      std::fprintf(stderr, "alpha %.1f deg: texel error median %.3f px, p99 %.3f px, max %.3f px; bound (w/2) sin(alpha) for 2w0 facets %.3f px; "
+                   "largest e / bound %.3f\n", a, e->median_px, e->p99_px, e->max_px, predicted, e->max_ratio);
+      if (a == 7.5) rep.errors["texel_error_p99_px_at_half_gap"] = e->p99_px, rep.errors["texel_error_bound_ratio_max"] = e->max_ratio;
+    }
+    if (auto st = te.write_csv(out / "texel_error.csv"); !st) return error(st.error().message);
+    PlotSpec tp{"Texel displacement on screen vs angle to the camera (auto facets, rig)", "angle between view and camera (deg)",
+                "pixels", "angle_deg", {"median_px", "p99_px", "max_px", "predicted_px"}, false, false, false};
+    if (auto st = plot_png(te, tp, out / "texel_error.png"); !st) rep.warnings.push_back(st.error().message);
+  }
   if (!ratios.empty()) {
     rep.errors["time_ratio_ours_over_open3d_median"] = median(ratios);
     rep.errors["fusion_time_ratio_ours_over_open3d_median"] = median(fusion_ratios);

@@ -6,7 +6,11 @@
 
 #include "capture/synth_rig.h"
 #include "core/image_io.h"
+#include "reconstruct/microfacets.h"
 #include "reconstruct/view_cloud.h"
+
+#include <numbers>
+#include <unordered_map>
 
 namespace s2r {
 namespace fs = std::filesystem;
@@ -131,6 +135,85 @@ Result<StrandCoverage> strand_coverage(const Model& model, const fs::path& sessi
   sc.covered = sc.strand_pixels ? double(covered) / double(sc.strand_pixels) : 0;
   sc.background = all_covered ? double(over) / double(all_covered) : 0;
   return sc;
+}
+
+Result<TexelError> measure_texel_error(const Model& model, const fs::path& session_dir, double angle_deg, int stride) {
+  TexelError te;
+  te.angle_deg = angle_deg;
+  if (model.cameras.size() < 2 || model.facets.empty()) return fail("texel error: needs two cameras and facets");
+  std::vector<Eigen::Isometry3d> poses;
+  for (const auto& c : model.cameras) poses.push_back(c.world_from_camera);
+  const Eigen::Vector3d centre = optical_axes_centre(poses);
+  Eigen::Vector3d axis = Eigen::Vector3d::Zero();
+  for (size_t i = 0; i < poses.size(); ++i)
+    axis += (poses[i].translation() - centre).cross(poses[(i + 1) % poses.size()].translation() - centre);
+  if (axis.norm() < 1e-12) return fail("texel error: the cameras do not circle the object");
+  axis.normalize();
+  const Eigen::Matrix3d R = Eigen::AngleAxisd(angle_deg * std::numbers::pi / 180, axis).toRotationMatrix();
+  // Facets in a hash grid of the largest facet size.
+  float cell = 0;
+  for (const auto& f : model.facets) cell = std::max(cell, f.size);
+  auto key = [&](const Eigen::Vector3f& p) {
+    const Eigen::Vector3i k = (p / cell).array().floor().cast<int>();
+    return (uint64_t(uint32_t(k.x()) & 0x1fffff) << 42) | (uint64_t(uint32_t(k.y()) & 0x1fffff) << 21) | uint64_t(uint32_t(k.z()) & 0x1fffff);
+  };
+  std::unordered_map<uint64_t, std::vector<uint32_t>> grid;
+  for (uint32_t i = 0; i < model.facets.size(); ++i) {
+    const auto& f = model.facets[i];
+    grid[key(Eigen::Vector3f(f.center[0], f.center[1], f.center[2]))].push_back(i);
+  }
+  std::vector<double> err;
+  const double s = std::sin(angle_deg * std::numbers::pi / 180);
+  for (const auto& cam : model.cameras) {
+    auto gt = read_image_float(session_dir / "ground_truth" / "depth_color" / frame_file_name(cam.session_frame, "exr"));
+    if (!gt) return std::unexpected(gt.error());
+    const Eigen::Vector3d eye = cam.world_from_camera.translation();
+    const Eigen::Vector3d view_eye = centre + R * (eye - centre);
+    const double f = cam.intrinsics.fx;
+    for (int y = 0; y < gt->height; y += stride)
+      for (int x = 0; x < gt->width; x += stride) {
+        const float z = gt->at(x, y);
+        if (!(z > 0)) continue;
+        auto r = cam.intrinsics.ray({double(x), double(y)});
+        if (!r) continue;
+        const Eigen::Vector3d P = cam.world_from_camera * (*r * z);
+        const Eigen::Vector3d u = (P - eye).normalized();
+        const Eigen::Vector3d v = (P - view_eye).normalized();
+        const double zv = (P - view_eye).norm();
+        // In-plane axes of billboards facing the view.
+        const Eigen::Vector3d bx = v.unitOrthogonal(), by = v.cross(bx);
+        double worst = -1, worst_ratio = 0;
+        const Eigen::Vector3i k0 = (P.cast<float>() / cell).array().floor().cast<int>();
+        for (int dx = -1; dx <= 1; ++dx)
+          for (int dy = -1; dy <= 1; ++dy)
+            for (int dz = -1; dz <= 1; ++dz) {
+              const Eigen::Vector3f q = ((k0 + Eigen::Vector3i(dx, dy, dz)).cast<float>() + Eigen::Vector3f::Constant(0.5f)) * cell;
+              auto it = grid.find(key(q));
+              if (it == grid.end()) continue;
+              for (uint32_t fi : it->second) {
+                const auto& F = model.facets[fi];
+                const Eigen::Vector3d C(F.center[0], F.center[1], F.center[2]);
+                const double t = (C - P).dot(v) / u.dot(v);
+                if (std::abs(t) >= 0.5 * F.size) continue;  // depth clip
+                const Eigen::Vector3d Q = P + t * u;
+                const double half = 0.5 * std::sqrt(3.0) * F.size;
+                if (std::abs((Q - C).dot(bx)) > half || std::abs((Q - C).dot(by)) > half) continue;  // off the billboard
+                const Eigen::Vector3d d = Q - P;
+                const double e_px = f * (d - d.dot(v) * v).norm() / zv;
+                worst = std::max(worst, e_px);
+                if (s > 0) worst_ratio = std::max(worst_ratio, e_px / (f * 0.5 * F.size * s / zv));
+              }
+            }
+        if (worst < 0) continue;
+        err.push_back(worst);
+        te.max_ratio = std::max(te.max_ratio, worst_ratio);
+      }
+  }
+  te.texels = err.size();
+  te.median_px = quantile(err, 0.5);
+  te.p99_px = quantile(err, 0.99);
+  te.max_px = err.empty() ? 0 : *std::max_element(err.begin(), err.end());
+  return te;
 }
 
 }  // namespace s2r

@@ -40,4 +40,19 @@ struct StrandCoverage {
 // ground_truth/labels (2 = strand).
 Result<StrandCoverage> strand_coverage(const Model& model, const std::filesystem::path& session_dir);
 
+struct TexelError {
+  double angle_deg = 0;   // between the camera and the view, seen from the texel
+  size_t texels = 0;      // drawn texels measured
+  double median_px = 0, p99_px = 0, max_px = 0;  // on-screen displacement
+  double max_ratio = 0;   // largest e / ((f / z) (w/2) sin(alpha)): <= 1 when the bound holds
+};
+// The billboard geometry of DESIGN.md section 6 measured on the rig: true
+// surface points seen by each model camera (exact depth) are drawn on every
+// facet whose billboard, facing a view turned by `angle_deg` about the
+// cameras' ring axis, passes the depth clip |d - D| < w/2; the displacement
+// from the true point is measured in pixels of that view (the camera's focal
+// length).
+Result<TexelError> measure_texel_error(const Model& model, const std::filesystem::path& session_dir, double angle_deg,
+                                       int pixel_stride = 4);
+
 }  // namespace s2r

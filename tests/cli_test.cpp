@@ -54,6 +54,17 @@ TEST(Cli, SynthInspectPreviewWithReports) {
   EXPECT_TRUE(fs::exists(dir / "p" / "v2.png"));
   EXPECT_TRUE(fs::exists(dir / "p" / "v2_compare.png"));
   EXPECT_TRUE(fs::exists(dir / "p" / "report.json"));
+  // Reconstruct: a model that loads, a report; a bad --voxel is a clear error.
+  r = s2r("-q reconstruct " + (dir / "s").string() + " --out " + (dir / "m").string());
+  ASSERT_EQ(r.code, 0) << r.out;
+  for (const char* f : {"model.json", "facets.bin", "facet_cameras.bin", "octree.bin", "patches.ply", "report.json",
+                        "cameras/0000.exr"})
+    EXPECT_TRUE(fs::exists(dir / "m" / f)) << f;
+  r = s2r("reconstruct " + (dir / "s").string() + " --out " + (dir / "m2").string() + " --voxel -3");
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.out.find("--voxel"), std::string::npos) << r.out;
+  r = s2r("reconstruct --help");
+  EXPECT_NE(r.out.find("--geometry"), std::string::npos) << r.out;
   // Writing over an existing session is refused, not silently merged.
   r = s2r("synth --scene blob --views 2 --out " + (dir / "s").string());
   EXPECT_EQ(r.code, 1);
