@@ -163,7 +163,6 @@ Result<TexelError> measure_texel_error(const Model& model, const fs::path& sessi
     grid[key(Eigen::Vector3f(f.center[0], f.center[1], f.center[2]))].push_back(i);
   }
   std::vector<double> err;
-  const double s = std::sin(angle_deg * std::numbers::pi / 180);
   for (const auto& cam : model.cameras) {
     auto gt = read_image_float(session_dir / "ground_truth" / "depth_color" / frame_file_name(cam.session_frame, "exr"));
     if (!gt) return std::unexpected(gt.error());
@@ -201,7 +200,9 @@ Result<TexelError> measure_texel_error(const Model& model, const fs::path& sessi
                 const Eigen::Vector3d d = Q - P;
                 const double e_px = f * (d - d.dot(v) * v).norm() / zv;
                 worst = std::max(worst, e_px);
-                if (s > 0) worst_ratio = std::max(worst_ratio, e_px / (f * 0.5 * F.size * s / zv));
+                // The bound at this texel: alpha is the angle between its camera ray and the view ray here.
+                const double s_here = u.cross(v).norm();
+                if (s_here > 1e-9) worst_ratio = std::max(worst_ratio, e_px / (f * 0.5 * F.size * s_here / zv));
               }
             }
         if (worst < 0) continue;

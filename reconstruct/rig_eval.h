@@ -41,10 +41,11 @@ struct StrandCoverage {
 Result<StrandCoverage> strand_coverage(const Model& model, const std::filesystem::path& session_dir);
 
 struct TexelError {
-  double angle_deg = 0;   // between the camera and the view, seen from the texel
+  double angle_deg = 0;   // the view's turn from each camera about the ring axis (seen from the centre)
   size_t texels = 0;      // drawn texels measured
   double median_px = 0, p99_px = 0, max_px = 0;  // on-screen displacement
-  double max_ratio = 0;   // largest e / ((f / z) (w/2) sin(alpha)): <= 1 when the bound holds
+  double max_ratio = 0;   // largest e / ((f / z) (w/2) sin(alpha)), alpha the angle between the
+                          // camera ray and the view ray at the texel: <= 1 when the bound holds
 };
 // The billboard geometry of DESIGN.md section 6 measured on the rig: true
 // surface points seen by each model camera (exact depth) are drawn on every
