@@ -1,11 +1,13 @@
 // Fusion of registered views into a sparse volume (DESIGN.md section 6.1).
 // OpenVDB is confined to fusion.cpp.
 //
-// Depth: a truncated signed distance per voxel (projective, z along the depth
-// camera's axis, truncated at +tau and, behind the measured surface, clamped at
-// -1.5 voxels so thin parts survive views from the other side), with the number
-// of views that observed it and the spread of their signed distances (Welford),
-// from which the voxel's reliability follows (agreement between views).
+// Depth: a truncated signed distance per voxel (projective, z along the
+// depth camera's axis, truncated at +tau and, behind the measured surface,
+// clamped at -1.5 voxels so thin parts survive views from the other side),
+// updated in every leaf node (8^3 voxels) within tau of a measured point, with
+// the number of views that observed it and the spread of their signed
+// distances (Welford), from which the voxel's reliability follows (agreement
+// between views).
 //
 // Silhouettes: a visual hull carved coarse to fine from foreground masks (each
 // cell's projected footprint must touch the foreground in every view that sees
