@@ -329,7 +329,6 @@ HullStats SparseVolume::carve_hull(const std::vector<SilhouetteObservation>& vie
     const double margin = std::max(m.tau, radius), hidden = radius;
     std::vector<Eigen::Isometry3d> cam_from_world;
     for (const auto& d : depth) cam_from_world.push_back(d.world_from_camera.inverse());
-    auto acc_proto = m.tsdf->getConstAccessor();
     in_arena(threads, [&] {
       tbb::parallel_for(tbb::blocked_range<size_t>(0, cells.size()), [&](const auto& r) {
         auto acc = m.tsdf->getConstAccessor();
@@ -369,7 +368,6 @@ HullStats SparseVolume::carve_hull(const std::vector<SilhouetteObservation>& vie
         }
       });
     });
-    (void)acc_proto;
   }
   m.hull = openvdb::MaskGrid::create(false);
   m.fuzzy = openvdb::MaskGrid::create(false);

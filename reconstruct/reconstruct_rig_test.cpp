@@ -1,6 +1,7 @@
 // s2r reconstruct on the synthetic rig, whose geometry is known: the textured
 // bunny (facet centres on the surface, per-camera depth against exact depth),
-// the fuzzy object (facets cover the strands the depth camera loses), and the
+// the fuzzy object (facets cover the strands the depth camera loses), the room
+// seen from a camera in its middle, and the
 // job's stiff cases on the small "blob" scene: a view whose depth is all zero,
 // one camera only, w below a pixel, w of the whole object, held-out views.
 #include <gtest/gtest.h>
@@ -93,6 +94,19 @@ TEST(ReconstructRig, FuzzyStrandsAreCovered) {
   EXPECT_GT(r.counts.at("facets_fuzzy"), 100);
   // Fuzzy regions get the larger facets.
   EXPECT_GT(r.counts.at("facets_coarse"), r.counts.at("facets_fine"));
+}
+
+TEST(ReconstructRig, CameraInTheMiddleRoom) {
+  // The seed's second layout: the camera turns in the middle of a room.
+  ReconstructJob job;
+  job.session = session("room", 24, 320, 240);
+  job.out = scratch() / "room_model";
+  const Report r = reconstruct(job);
+  print("room", r);
+  EXPECT_EQ(std::get<std::string>(r.params.at("geometry")), "depth");
+  EXPECT_EQ(r.skipped.at("visual_hull_not_needed"), 1);
+  EXPECT_GE(r.errors.at("facets_within_w_fraction"), 0.99);
+  EXPECT_LT(r.errors.at("camera_depth_median_m"), std::get<double>(r.params.at("voxel_m")) / 4);
 }
 
 TEST(ReconstructRig, StiffCases) {
