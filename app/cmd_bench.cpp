@@ -339,6 +339,7 @@ int bench_reconstruct(const fs::path& out, const std::string& scene_in) {
   t.columns = {"voxel_mm", "seconds", "fusion_seconds", "median_mm", "p99_mm", "within_w", "elements"};
   std::vector<double> ratios, fusion_ratios;
   for (double w : {0.0015, 0.002, 0.003, 0.004, 0.006}) {
+    const SurfaceDistance distance_to_truth(*mesh, w / 5);
     ReconstructJob job;
     job.session = session;
     job.out = out / fmt::format("ours_{:.1f}mm", 1e3 * w);
@@ -358,7 +359,7 @@ int bench_reconstruct(const fs::path& out, const std::string& scene_in) {
     if (auto patches = read_ply_mesh(job.out / "patches.ply")) {
       std::vector<FacetRecord> pv;
       for (const auto& v : patches->vertices) pv.push_back({{v.x(), v.y(), v.z()}, float(w), {0, 0, 0}, 0, 0, 0});
-      const SurfaceError e = facet_surface_error(pv, *mesh, w / 5);
+      const SurfaceError e = distance_to_truth.error(pv);
       t.row_labels.push_back("ours (octree patch mesh vertices)");
       t.rows.push_back({1e3 * w, ours_s, ours_fusion, 1e3 * e.median_m, 1e3 * e.p99_m, e.within_size, double(patches->faces.size())});
     }
@@ -393,7 +394,7 @@ int bench_reconstruct(const fs::path& out, const std::string& scene_in) {
       while (std::fscanf(xyz, "%f %f %f", &x, &y, &z) == 3) verts.push_back({{x, y, z}, float(w), {0, 0, 0}, 0, 0, 0});
       std::fclose(xyz);
     }
-    const SurfaceError pe = facet_surface_error(verts, *mesh, w / 5);
+    const SurfaceError pe = distance_to_truth.error(verts);
     const double peer_s = res["seconds"].get<double>(), peer_fusion = res["seconds_integrate"].get<double>();
     t.row_labels.push_back("Open3D " + res["open3d"].get<std::string>() + " ScalableTSDF + marching cubes");
     t.rows.push_back({1e3 * w, peer_s, peer_fusion, 1e3 * pe.median_m, 1e3 * pe.p99_m, pe.within_size,

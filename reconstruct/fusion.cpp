@@ -487,7 +487,7 @@ std::vector<std::pair<Eigen::Vector3i, float>> SparseVolume::samples() const {
   return out;
 }
 
-Mesh SparseVolume::surface_mesh() const {
+Mesh SparseVolume::surface_mesh(const std::vector<EvidenceVoxel>& evidence) const {
   const Impl& m = *impl_;
   Mesh mesh;
   auto append = [&](const openvdb::tools::VolumeToMesh& mesher) {
@@ -522,7 +522,7 @@ Mesh SparseVolume::surface_mesh() const {
     for (auto it = m.tsdf->cbeginValueOn(); it; ++it)
       if ((*it)[1] > 0 && it.isVoxelValue()) sacc.setValue(it.getCoord(), (*it)[0]);
     auto macc = mask->getAccessor();
-    for (const auto& e : evidence(1.0))
+    for (const auto& e : evidence)
       if (!e.fuzzy) macc.setValueOn(Coord(e.ijk.x(), e.ijk.y(), e.ijk.z()), true);
   }
   if (mask->activeVoxelCount() > 0) {

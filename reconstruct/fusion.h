@@ -107,7 +107,8 @@ class SparseVolume {
 
   // The fused surface as triangles (OpenVDB volume-to-mesh at sdf = 0, limited
   // to observed surface voxels) plus the fuzzy/hull voxels' closed hull.
-  Mesh surface_mesh() const;
+  // `evidence`: what evidence() returned (its depth voxels bound the mesher).
+  Mesh surface_mesh(const std::vector<EvidenceVoxel>& evidence) const;
 
   size_t active_voxels() const;   // all grids
   size_t memory_bytes() const;    // all grids

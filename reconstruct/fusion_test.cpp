@@ -137,7 +137,7 @@ TEST(Fusion, SphereFromARingOfExactDepth) {
   EXPECT_GE(double(outward) / ev.size(), 0.95);
   EXPECT_GE(double(reliable) / ev.size(), 0.5);
   // The fused surface, ray cast from a camera, gives the sphere's distance.
-  auto caster = MeshRaycaster::create(vol.surface_mesh());
+  auto caster = MeshRaycaster::create(vol.surface_mesh(ev));
   ASSERT_TRUE(caster);
   const ImageF d = (*caster)->distance_image(camera(), r.poses[0]);
   const Eigen::Vector3d eye = r.poses[0].translation();

@@ -355,7 +355,7 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   rep.counts["active_voxels"] = double(volume.active_voxels());
   rep.skipped["voxels_without_evidence"] = double(volume.active_voxels()) - double(evidence.size());
   rep.counts["volume_bytes"] = double(volume.memory_bytes());
-  Mesh surface = volume.surface_mesh();
+  Mesh surface = volume.surface_mesh(evidence);
   rep.counts["surface_triangles"] = double(surface.faces.size());
   timer.lap("evidence");
 
@@ -479,8 +479,9 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
     std::vector<FacetRecord> solid;
     for (const auto& f : model.facets)
       if (f.size <= w0 * 1.01) solid.push_back(f);
-    const SurfaceError all = facet_surface_error(model.facets, *mesh, w0 / 5);
-    const SurfaceError fine = facet_surface_error(solid, *mesh, w0 / 5);
+    const SurfaceDistance distance_to_truth(*mesh, w0 / 5);
+    const SurfaceError all = distance_to_truth.error(model.facets);
+    const SurfaceError fine = distance_to_truth.error(solid);
     rep.errors["facets_within_w_fraction"] = all.within_size;
     rep.errors["facet_distance_median_m"] = all.median_m;
     rep.errors["facet_distance_p99_m"] = all.p99_m;

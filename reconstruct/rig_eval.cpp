@@ -44,17 +44,20 @@ std::vector<Eigen::Vector3f> sample_surface(const Mesh& mesh, double spacing) {
 
 }  // namespace
 
-SurfaceError facet_surface_error(const std::vector<FacetRecord>& facets, const Mesh& truth, double sample_m) {
+SurfaceDistance::SurfaceDistance(const Mesh& truth, double sample_m)
+    : index_(std::make_unique<NeighbourIndex>(sample_surface(truth, sample_m))) {}
+SurfaceDistance::~SurfaceDistance() = default;
+
+SurfaceError SurfaceDistance::error(const std::vector<FacetRecord>& facets) const {
   SurfaceError e;
   e.facets = facets.size();
   if (facets.empty()) return e;
-  const NeighbourIndex index(sample_surface(truth, sample_m));
   std::vector<double> d(facets.size());
   size_t within = 0;
   for (size_t i = 0; i < facets.size(); ++i) {
     const Eigen::Vector3f c(facets[i].center[0], facets[i].center[1], facets[i].center[2]);
     float d2 = 0;
-    const int k = index.nearest(c, 1e3f, &d2);
+    const int k = index_->nearest(c, 1e3f, &d2);
     d[i] = k < 0 ? std::numeric_limits<double>::infinity() : std::sqrt(double(d2));
     within += d[i] <= facets[i].size;
   }
@@ -63,6 +66,11 @@ SurfaceError facet_surface_error(const std::vector<FacetRecord>& facets, const M
   e.p99_m = quantile(d, 0.99);
   e.max_m = *std::max_element(d.begin(), d.end());
   return e;
+}
+
+SurfaceError facet_surface_error(const std::vector<FacetRecord>& facets, const Mesh& truth, double sample_m) {
+  if (facets.empty()) return {};
+  return SurfaceDistance(truth, sample_m).error(facets);
 }
 
 Result<DepthError> camera_depth_error(const Model& model, const fs::path& model_dir, const fs::path& session_dir) {

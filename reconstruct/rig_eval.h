@@ -4,6 +4,7 @@
 #pragma once
 
 #include <filesystem>
+#include <memory>
 #include <vector>
 
 #include "core/mesh.h"
@@ -12,13 +13,24 @@
 
 namespace s2r {
 
+class NeighbourIndex;
+
 struct SurfaceError {
   size_t facets = 0;
   double within_size = 0;      // fraction of facet centres within their own size w of the surface
   double median_m = 0, p99_m = 0, max_m = 0;
 };
-// Distances from facet centres (those with `fuzzy == include_fuzzy` or all when
-// `all`) to the mesh, through dense samples of the mesh (spacing `sample_m`).
+// Distances from facet centres to the true surface, through dense samples of
+// its mesh (spacing `sample_m`) in a k-d tree built once.
+class SurfaceDistance {
+ public:
+  SurfaceDistance(const Mesh& truth, double sample_m);
+  ~SurfaceDistance();
+  SurfaceError error(const std::vector<FacetRecord>& facets) const;
+
+ private:
+  std::unique_ptr<NeighbourIndex> index_;
+};
 SurfaceError facet_surface_error(const std::vector<FacetRecord>& facets, const Mesh& truth, double sample_m);
 
 struct DepthError {
