@@ -1,6 +1,8 @@
 // Subcommands of the reconstruct stage: register, reconstruct.
 #include <cstdio>
+#include <optional>
 #include <sstream>
+#include <vector>
 
 #include "app/commands.h"
 #include "reconstruct/reconstruct_job.h"
@@ -20,6 +22,23 @@ std::optional<std::pair<double, double>> parse_pair(const std::string& s) {
       b < 0)
     return std::nullopt;
   return std::make_pair(a, b);
+}
+
+// "a,b,c" -> {"a", "b", "c"}
+std::vector<std::string> comma_items(const std::string& s) {
+  std::vector<std::string> out;
+  std::istringstream in(s);
+  std::string item;
+  while (std::getline(in, item, ',')) out.push_back(item);
+  return out;
+}
+
+// A positive, finite length in metres, the whole token.
+std::optional<double> positive_metres(const std::string& item) {
+  char* end = nullptr;
+  const double v = std::strtod(item.c_str(), &end);
+  if (end == item.c_str() || *end != '\0' || !(v > 0) || !std::isfinite(v)) return std::nullopt;
+  return v;
 }
 
 void add_register(CLI::App& app) {
@@ -74,16 +93,10 @@ void add_register(CLI::App& app) {
         job.perturb_deg = p->first;
         job.perturb_m = p->second;
       }
-      if (!a->voxels.empty()) {
-        std::istringstream in(a->voxels);
-        std::string item;
-        while (std::getline(in, item, ',')) {
-          char* end = nullptr;
-          const double v = std::strtod(item.c_str(), &end);
-          if (end == item.c_str() || *end != '\0' || !(v > 0) || !std::isfinite(v))
-            return error("--voxels: '" + item + "' is not a positive length in metres");
-          job.options.voxel_m.push_back(v);
-        }
+      for (const auto& item : comma_items(a->voxels)) {
+        const auto v = positive_metres(item);
+        if (!v) return error("--voxels: '" + item + "' is not a positive length in metres");
+        job.options.voxel_m.push_back(*v);
       }
       auto r = run_register_job(job);
       if (!r) return error(r.error().message);
@@ -145,21 +158,14 @@ void add_reconstruct(CLI::App& app) {
       job.textures = !a->no_textures;
       job.threads = a->threads;
       if (a->voxel != "auto") {
-        char* end = nullptr;
-        const double v = std::strtod(a->voxel.c_str(), &end);
-        if (end == a->voxel.c_str() || *end != '\0' || !(v > 0) || !std::isfinite(v))
-          return error("--voxel: '" + a->voxel + "' is neither 'auto' nor a positive length in metres");
-        job.voxel_m = v;
+        job.voxel_m = positive_metres(a->voxel);
+        if (!job.voxel_m) return error("--voxel: '" + a->voxel + "' is neither 'auto' nor a positive length in metres");
       }
-      if (!a->holdout.empty()) {
-        std::istringstream in(a->holdout);
-        std::string item;
-        while (std::getline(in, item, ',')) {
-          char* end = nullptr;
-          const long v = std::strtol(item.c_str(), &end, 10);
-          if (end == item.c_str() || *end != '\0' || v < 0) return error("--holdout: '" + item + "' is not a frame index");
-          job.holdout.push_back(int(v));
-        }
+      for (const auto& item : comma_items(a->holdout)) {
+        char* end = nullptr;
+        const long v = std::strtol(item.c_str(), &end, 10);
+        if (end == item.c_str() || *end != '\0' || v < 0) return error("--holdout: '" + item + "' is not a frame index");
+        job.holdout.push_back(int(v));
       }
       auto r = run_reconstruct_job(job);
       if (!r) return error(r.error().message);
