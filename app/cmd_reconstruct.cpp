@@ -24,23 +24,6 @@ std::optional<std::pair<double, double>> parse_pair(const std::string& s) {
   return std::make_pair(a, b);
 }
 
-// "a,b,c" -> {"a", "b", "c"}
-std::vector<std::string> comma_items(const std::string& s) {
-  std::vector<std::string> out;
-  std::istringstream in(s);
-  std::string item;
-  while (std::getline(in, item, ',')) out.push_back(item);
-  return out;
-}
-
-// A positive, finite length in metres, the whole token.
-std::optional<double> positive_metres(const std::string& item) {
-  char* end = nullptr;
-  const double v = std::strtod(item.c_str(), &end);
-  if (end == item.c_str() || *end != '\0' || !(v > 0) || !std::isfinite(v)) return std::nullopt;
-  return v;
-}
-
 void add_register(CLI::App& app) {
   auto* sub = app.add_subcommand(
       "register",
@@ -161,12 +144,9 @@ void add_reconstruct(CLI::App& app) {
         job.voxel_m = positive_metres(a->voxel);
         if (!job.voxel_m) return error("--voxel: '" + a->voxel + "' is neither 'auto' nor a positive length in metres");
       }
-      for (const auto& item : comma_items(a->holdout)) {
-        char* end = nullptr;
-        const long v = std::strtol(item.c_str(), &end, 10);
-        if (end == item.c_str() || *end != '\0' || v < 0) return error("--holdout: '" + item + "' is not a frame index");
-        job.holdout.push_back(int(v));
-      }
+      auto held = frame_list(a->holdout, "--holdout");
+      if (!held) return error(held.error().message);
+      job.holdout = *held;
       auto r = run_reconstruct_job(job);
       if (!r) return error(r.error().message);
       return finish(*r, fs::path(a->out) / "report.json");

@@ -1,5 +1,7 @@
-// Subcommands that draw: preview (now), render/eval/view/raytrace/envmap (later).
+// Subcommands that draw: preview, render, eval, view (raytrace and envmap later).
 #include "app/commands.h"
+#include "render/model_eval.h"
+#include "render/viewer.h"
 #include "render/session_preview.h"
 
 namespace s2r::cli {
@@ -27,13 +29,159 @@ void add_preview(CLI::App& app) {
     });
   });
 }
+// The drawing options every model command shares.
+struct DrawArgs {
+  std::string geometry = "billboards";
+  int cameras = 3;
+  bool no_clip = false, by_camera = false, no_cull = false;
+  double clip = 0.8660254037844386, scale = 1.7320508075688772;
+};
+
+void add_draw_options(CLI::App* sub, DrawArgs& a) {
+  sub->add_option("--geometry", a.geometry, "billboards | mesh (the textured patch-mesh baseline)")
+      ->check(CLI::IsMember({"billboards", "mesh"}))->capture_default_str();
+  sub->add_option("--cameras", a.cameras, "k: input cameras blended per facet (1-4)")->check(CLI::Range(1, 4))->capture_default_str();
+  sub->add_flag("--no-clip", a.no_clip, "billboards without depth clipping (the seed's comparison)");
+  sub->add_option("--clip", a.clip, "depth-clipping threshold |d - D| < clip * w")->check(CLI::PositiveNumber)->capture_default_str();
+  sub->add_option("--billboard-scale", a.scale, "billboard width / w (at least sqrt 3)")->capture_default_str();
+  sub->add_flag("--by-camera", a.by_camera, "colour each facet by its chosen camera");
+  sub->add_flag("--no-cull", a.no_cull, "draw every facet (no frustum or back-face culling)");
+}
+
+DrawOptions draw_options(const DrawArgs& a) {
+  DrawOptions d;
+  d.geometry = a.geometry == "mesh" ? DrawOptions::Geometry::kMesh : DrawOptions::Geometry::kBillboards;
+  d.selection.cameras = a.cameras;
+  d.depth_clip = !a.no_clip;
+  d.clip_scale = a.clip;
+  d.billboard_scale = a.scale;
+  d.color_by_camera = a.by_camera;
+  d.selection.frustum_cull = d.selection.backface_cull = !a.no_cull;
+  return d;
+}
+
+void add_source_options(CLI::App* sub, FrameSource& s) {
+  sub->add_option("--session", s.session, "the session (for frames the model does not hold, and for eval's photos)");
+  sub->add_option("--poses", s.poses, "registered poses (s2r register), as given to reconstruct");
+  sub->add_option("--calibration", s.calibration, "calibration, as given to reconstruct");
+}
+
+void add_render(CLI::App& app) {
+  auto* sub = app.add_subcommand("render",
+                                 "Offscreen image of a model (EGL) at a session frame's camera (--view I; held-out\n"
+                                 "frames need --session) or a view file (--pose FILE, as the viewer's P key saves).");
+  struct Args {
+    std::string model, out, pose, report;
+    int view = -1;
+    double scale = 1;
+    DrawArgs draw;
+    FrameSource source;
+  };
+  auto a = std::make_shared<Args>();
+  sub->add_option("model", a->model, "model folder (s2r reconstruct)")->required();
+  sub->add_option("--out", a->out, "PNG to write")->required();
+  sub->add_option("--view", a->view, "session frame whose camera draws the image (0-based)");
+  sub->add_option("--pose", a->pose, "view file: {format s2r.view, intrinsics, world_from_camera}");
+  sub->add_option("--scale", a->scale, "image size relative to the camera's")->capture_default_str();
+  sub->add_option("--report", a->report, "report path (default: beside --out)");
+  add_draw_options(sub, a->draw);
+  add_source_options(sub, a->source);
+  sub->callback([a] {
+    set_runner([a] {
+      RenderJob job;
+      job.model = a->model;
+      job.out = a->out;
+      if (a->view >= 0) job.view = a->view;
+      job.view_file = a->pose;
+      if (!job.view && job.view_file.empty()) return error("give --view I or --pose FILE");
+      job.source = a->source;
+      job.draw = draw_options(a->draw);
+      job.scale = a->scale;
+      auto r = run_render_job(job);
+      if (!r) return error(r.error().message);
+      return finish(*r, a->report.empty() ? fs::path(a->out).parent_path() / "report.json" : fs::path(a->report));
+    });
+  });
+}
+
+void add_eval(CLI::App& app) {
+  auto* sub = app.add_subcommand(
+      "eval",
+      "Render frames (held out at reconstruct, or input views) and compare with the photos: PSNR and SSIM\n"
+      "over the object's pixels joined with every drawn pixel, for billboards and, in the same run, the\n"
+      "baselines (billboards without depth clipping, the textured patch mesh). Writes OUT/frame_NNNN.png\n"
+      "(photo | billboards | no clip | mesh), OUT/eval.csv and OUT/report.json.");
+  struct Args {
+    std::string model, out, holdout;
+    bool no_baselines = false;
+    DrawArgs draw;
+    FrameSource source;
+  };
+  auto a = std::make_shared<Args>();
+  sub->add_option("model", a->model, "model folder (s2r reconstruct)")->required();
+  sub->add_option("--holdout", a->holdout, "I,J,...: frames to render and compare")->required();
+  sub->add_option("--out", a->out, "output folder (default MODEL/eval)");
+  sub->add_flag("--no-baselines", a->no_baselines, "billboards only");
+  add_draw_options(sub, a->draw);
+  add_source_options(sub, a->source);
+  sub->callback([a] {
+    set_runner([a] {
+      EvalJob job;
+      job.model = a->model;
+      job.source = a->source;
+      auto frames = frame_list(a->holdout, "--holdout");
+      if (!frames) return error(frames.error().message);
+      job.frames = *frames;
+      job.out = a->out.empty() ? fs::path(a->model) / "eval" : fs::path(a->out);
+      job.draw = draw_options(a->draw);
+      job.baselines = !a->no_baselines;
+      auto r = run_eval_job(job);
+      if (!r) return error(r.error().message);
+      return finish(*r, job.out / "report.json");
+    });
+  });
+}
+
+void add_view(CLI::App& app) {
+  auto* sub = app.add_subcommand("view", "Interactive viewer (GLFW window; the keys are listed on start and by H)");
+  struct Args {
+    std::string model, screenshot, pose;
+    int width = 1280, height = 720, frames = 0;
+    DrawArgs draw;
+  };
+  auto a = std::make_shared<Args>();
+  sub->add_option("model", a->model, "model folder (s2r reconstruct)")->required();
+  sub->add_option("--width", a->width, "window width")->capture_default_str();
+  sub->add_option("--height", a->height, "window height")->capture_default_str();
+  sub->add_option("--pose", a->pose, "start at this view file instead of the orbit's default");
+  sub->add_option("--frames", a->frames, "draw this many frames and quit (0 = until closed); for tests and timing");
+  sub->add_option("--screenshot", a->screenshot, "PNG written after the last frame");
+  add_draw_options(sub, a->draw);
+  sub->callback([a] {
+    set_runner([a] {
+      ViewerOptions o;
+      o.model = a->model;
+      o.width = a->width;
+      o.height = a->height;
+      o.frames = a->frames;
+      o.screenshot = a->screenshot;
+      o.start_view = a->pose;
+      o.draw = draw_options(a->draw);
+      auto r = run_viewer(o);
+      if (!r) return error(r.error().message);
+      std::fprintf(stderr, "%s\n", r->brief().c_str());
+      return 0;
+    });
+  });
+}
+
 }  // namespace
 
 void add_render_commands(CLI::App& app) {
   add_preview(app);
-  add_not_yet(app, "render", "Offscreen image of a model");
-  add_not_yet(app, "eval", "PSNR/SSIM against held-out photos");
-  add_not_yet(app, "view", "Interactive viewer");
+  add_render(app);
+  add_eval(app);
+  add_view(app);
   add_not_yet(app, "raytrace", "CPU ray tracer with visual-field LOD");
   add_not_yet(app, "envmap", "Multi-scale environment map");
 }

@@ -6,7 +6,9 @@
 
 #include <filesystem>
 #include <functional>
+#include <optional>
 #include <string>
+#include <vector>
 
 #include "core/report.h"
 
@@ -24,6 +26,12 @@ void add_bench_commands(CLI::App& app);   // bench
 // Print the report's brief line and write it to `path` (or OUT/report.json).
 int finish(const Report& report, const std::filesystem::path& path);
 int error(const std::string& message);
+// "a,b,c" -> {"a", "b", "c"}
+std::vector<std::string> comma_items(const std::string& s);
+// A positive, finite length in metres, the whole token.
+std::optional<double> positive_metres(const std::string& item);
+// "3,7,11" -> frame indices (>= 0); `flag` names the option in the error.
+Result<std::vector<int>> frame_list(const std::string& s, const std::string& flag);
 // A DESIGN.md command that later work provides.
 void add_not_yet(CLI::App& app, const std::string& name, const std::string& what);
 

@@ -2,7 +2,9 @@
 #include <unistd.h>
 
 #include <cstdio>
+#include <cmath>
 #include <cstdlib>
+#include <sstream>
 
 #include "app/commands.h"
 #include "core/progress.h"
@@ -21,6 +23,32 @@ int finish(const Report& report, const std::filesystem::path& path) {
   if (auto st = report.write(path); !st) return error(st.error().message);
   std::fprintf(stderr, "report: %s\n", path.c_str());
   return 0;
+}
+
+std::vector<std::string> comma_items(const std::string& s) {
+  std::vector<std::string> out;
+  std::istringstream in(s);
+  std::string item;
+  while (std::getline(in, item, ',')) out.push_back(item);
+  return out;
+}
+
+std::optional<double> positive_metres(const std::string& item) {
+  char* end = nullptr;
+  const double v = std::strtod(item.c_str(), &end);
+  if (end == item.c_str() || *end != '\0' || !(v > 0) || !std::isfinite(v)) return std::nullopt;
+  return v;
+}
+
+Result<std::vector<int>> frame_list(const std::string& s, const std::string& flag) {
+  std::vector<int> out;
+  for (const auto& item : comma_items(s)) {
+    char* end = nullptr;
+    const long v = std::strtol(item.c_str(), &end, 10);
+    if (end == item.c_str() || *end != '\0' || v < 0 || v > 1000000) return fail(flag + ": '" + item + "' is not a frame index");
+    out.push_back(int(v));
+  }
+  return out;
 }
 
 int error(const std::string& message) {

@@ -91,8 +91,9 @@ float depth_reliability(int views, float spread_m, double sigma_m) {
   return float(count * std::exp(-0.5 * s * s));
 }
 
-std::optional<ImageU8> backdrop_mask(const ImageU8& color, double threshold, double* border_spread) {
-  if (color.empty() || color.width < 4 || color.height < 4) return std::nullopt;
+Backdrop border_backdrop(const ImageU8& color) {
+  Backdrop b;
+  if (color.empty()) return b;
   const int c = color.channels;
   std::vector<std::vector<int>> border{size_t(c)};
   auto add = [&](int x, int y) {
@@ -100,17 +101,25 @@ std::optional<ImageU8> backdrop_mask(const ImageU8& color, double threshold, dou
   };
   for (int x = 0; x < color.width; ++x) add(x, 0), add(x, color.height - 1);
   for (int y = 1; y + 1 < color.height; ++y) add(0, y), add(color.width - 1, y);
-  std::vector<int> bg(static_cast<size_t>(c), 0);
-  double spread = 0;
+  b.color.assign(static_cast<size_t>(c), 0);
   for (int k = 0; k < c; ++k) {
     auto& v = border[size_t(k)];
     std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
-    bg[size_t(k)] = v[v.size() / 2];
+    b.color[size_t(k)] = v[v.size() / 2];
     std::vector<int> dev(v.size());
-    for (size_t i = 0; i < v.size(); ++i) dev[i] = std::abs(v[i] - bg[size_t(k)]);
+    for (size_t i = 0; i < v.size(); ++i) dev[i] = std::abs(v[i] - b.color[size_t(k)]);
     std::nth_element(dev.begin(), dev.begin() + dev.size() / 2, dev.end());
-    spread = std::max(spread, 1.4826 * dev[dev.size() / 2]);
+    b.spread = std::max(b.spread, 1.4826 * dev[dev.size() / 2]);
   }
+  return b;
+}
+
+std::optional<ImageU8> backdrop_mask(const ImageU8& color, double threshold, double* border_spread) {
+  if (color.empty() || color.width < 4 || color.height < 4) return std::nullopt;
+  const int c = color.channels;
+  const Backdrop b = border_backdrop(color);
+  const std::vector<int>& bg = b.color;
+  const double spread = b.spread;
   if (border_spread) *border_spread = spread;
   if (spread > 12) return std::nullopt;  // not a backdrop
   const double thr = threshold > 0 ? threshold : std::max(20.0, 6 * spread);
@@ -429,6 +438,25 @@ std::vector<EvidenceVoxel> SparseVolume::evidence(double reliability_sigma_m) co
       if (has[0] && has[1]) grad[a] = (nb[1][0] - nb[0][0]) / 2;
       else if (has[1]) grad[a] = nb[1][0] - v[0];
       else if (has[0]) grad[a] = v[0] - nb[0][0];
+    }
+    if (!surface && grad.norm() > 0.3f * float(m.voxel)) {
+      // The surface, locally a plane, cuts this voxel's cube without crossing
+      // a line to a 6-neighbour's centre (it clips a corner or an edge): the
+      // plane at distance |sdf| / |grad| meets the cube when that is at most
+      // (w/2) |n|_1. Without these voxels a ray that meets the surface in
+      // such a corner finds no facet within w/2 of it (holes in the render).
+      const Eigen::Vector3f n = grad.normalized();
+      const double dist = std::abs(v[0]) * m.voxel / grad.norm();
+      if (dist <= 0.5 * m.voxel * n.lpNorm<1>()) {
+        for (int dx = -1; dx <= 1 && !surface; ++dx)
+          for (int dy = -1; dy <= 1 && !surface; ++dy)
+            for (int dz = -1; dz <= 1 && !surface; ++dz) {
+              openvdb::Vec3s nb;
+              if ((dx || dy || dz) && value(c.offsetBy(dx, dy, dz), nb) && (nb[0] < 0) != (v[0] < 0) &&
+                  std::abs(nb[0] - v[0]) <= 3 * m.voxel)
+                surface = true;
+            }
+      }
     }
     if (!surface && std::abs(v[0]) < 0.5 * m.voxel) {
       // No observed neighbour across the surface (an object about one voxel

@@ -126,6 +126,11 @@ float depth_reliability(int views, float spread_m, double sigma_m);
 // median of the image border; a pixel is foreground when a channel differs
 // from it by more than `threshold` levels (0 = from the border's spread).
 // Returns nothing when the border is not uniform enough to be a backdrop.
+struct Backdrop {
+  std::vector<int> color;  // per channel: the border's median
+  double spread = 0;       // the border's robust spread (1.4826 MAD), levels
+};
+Backdrop border_backdrop(const ImageU8& color);
 std::optional<ImageU8> backdrop_mask(const ImageU8& color, double threshold = 0, double* border_spread = nullptr);
 
 }  // namespace s2r

@@ -57,13 +57,16 @@ void Framebuffer::clear(float r, float g, float b) const {
   glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
 }
 
-ImageU8 Framebuffer::read_rgb() const {
-  ImageU8 img(width_, height_, 3);
-  std::vector<uint8_t> rows(static_cast<size_t>(width_) * height_ * 3);
+ImageU8 Framebuffer::read_rgb() const { return read(3); }
+ImageU8 Framebuffer::read_rgba() const { return read(4); }
+
+ImageU8 Framebuffer::read(int channels) const {
+  ImageU8 img(width_, height_, channels);
+  std::vector<uint8_t> rows(static_cast<size_t>(width_) * height_ * channels);
   glBindFramebuffer(GL_READ_FRAMEBUFFER, fbo_);
   glPixelStorei(GL_PACK_ALIGNMENT, 1);
-  glReadPixels(0, 0, width_, height_, GL_RGB, GL_UNSIGNED_BYTE, rows.data());
-  const size_t stride = static_cast<size_t>(width_) * 3;
+  glReadPixels(0, 0, width_, height_, channels == 4 ? GL_RGBA : GL_RGB, GL_UNSIGNED_BYTE, rows.data());
+  const size_t stride = static_cast<size_t>(width_) * channels;
   for (int y = 0; y < height_; ++y)  // GL's row 0 is the bottom
     std::memcpy(img.data.data() + y * stride, rows.data() + (height_ - 1 - y) * stride, stride);
   return img;

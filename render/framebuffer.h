@@ -19,6 +19,7 @@ class Framebuffer {
   void clear(float r, float g, float b) const;
   // Pixels top row first (image convention), RGB.
   ImageU8 read_rgb() const;
+  ImageU8 read_rgba() const;  // alpha as drawn (the renderers clear it to 0)
   // Copy to the default framebuffer (a window's back buffer) of size w x h.
   void blit_to_screen(int w, int h) const;
   int width() const { return width_; }
@@ -26,6 +27,7 @@ class Framebuffer {
 
  private:
   Framebuffer() = default;
+  ImageU8 read(int channels) const;
   unsigned fbo_ = 0, color_ = 0, depth_ = 0;
   int width_ = 0, height_ = 0;
 };

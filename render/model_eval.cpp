@@ -1,0 +1,296 @@
+#include "render/model_eval.h"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <cmath>
+#include <set>
+
+#include "capture/session.h"
+#include "calibrate/calibration.h"
+#include "core/atomic_file.h"
+#include "core/image_io.h"
+#include "core/image_metrics.h"
+#include "core/json_fields.h"
+#include "core/progress.h"
+#include "core/sweep.h"
+#include "reconstruct/fusion.h"
+#include "reconstruct/reconstruct_job.h"
+#include "render/gl_context.h"
+
+namespace s2r {
+namespace fs = std::filesystem;
+
+Result<ViewCamera> load_view_file(const fs::path& path) {
+  auto j = parse_json_file(path);
+  if (!j) return std::unexpected(j.error());
+  try {
+    FieldReader doc(*j, path.filename().string());
+    check_format_header(doc, "s2r.view", 1);
+    ViewCamera v;
+    v.K = intrinsics_from(doc.at("intrinsics"));
+    v.world_from_camera = doc.rigid("world_from_camera");
+    return v;
+  } catch (const FormatError& e) {
+    return fail(path.string() + ": " + e.what());
+  }
+}
+
+Status save_view_file(const fs::path& path, const ViewCamera& v) {
+  nlohmann::json j;
+  j["format"] = "s2r.view";
+  j["version"] = 1;
+  j["intrinsics"] = intrinsics_to_json(v.K);
+  j["world_from_camera"] = rigid_to_json(v.world_from_camera);
+  return write_file_atomic(path, dump_json(j));
+}
+
+Result<ViewCamera> frame_view(const Model& model, const FrameSource& src, int frame) {
+  if (src.session.empty()) {
+    for (const auto& c : model.cameras)
+      if (c.session_frame == frame) return ViewCamera{c.intrinsics, c.world_from_camera};
+    return fail(fmt::format("frame {} is not one of the model's cameras (held out?): give --session to take its camera from the session", frame));
+  }
+  auto s = load_session(src.session);
+  if (!s) return std::unexpected(s.error());
+  if (frame < 0 || size_t(frame) >= s->frames.size())
+    return fail(fmt::format("--view {}: the session has frames 0..{}", frame, int(s->frames.size()) - 1));
+  auto poses = resolve_frame_poses(*s, src.poses, src.calibration);
+  if (!poses) return std::unexpected(poses.error());
+  if (!poses->world_from_camera[size_t(frame)]) return fail(fmt::format("frame {} has no pose ({})", frame, poses->source));
+  ViewCamera v;
+  v.world_from_camera = *poses->world_from_camera[size_t(frame)];
+  std::optional<Intrinsics> K;
+  if (!src.calibration.empty()) {
+    auto cal = load_calibration(src.calibration);
+    if (!cal) return std::unexpected(cal.error());
+    if (cal->color) K = cal->color->intrinsics;
+  }
+  if (!K) K = s->color_intrinsics(s->frames[size_t(frame)]);
+  if (!K) return fail(fmt::format("frame {} has no colour intrinsics", frame));
+  v.K = *K;
+  return v;
+}
+
+namespace {
+
+ViewCamera scaled(ViewCamera v, double s) {
+  if (s == 1) return v;
+  Intrinsics& K = v.K;
+  const int w = std::max(1, int(std::lround(K.width * s))), h = std::max(1, int(std::lround(K.height * s)));
+  const double sx = double(w) / K.width, sy = double(h) / K.height;
+  K.fx *= sx, K.fy *= sy;
+  K.cx = (K.cx + 0.5) * sx - 0.5, K.cy = (K.cy + 0.5) * sy - 0.5;
+  K.width = w, K.height = h;
+  return v;
+}
+
+ImageU8 rgb_of(const ImageU8& rgba) {
+  ImageU8 out(rgba.width, rgba.height, 3);
+  for (size_t i = 0; i < rgba.pixels(); ++i)
+    for (int c = 0; c < 3; ++c) out.data[i * 3 + c] = rgba.data[i * 4 + c];
+  return out;
+}
+
+void add_selection(Report& rep, const DrawStats& st, const std::string& suffix) {
+  rep.counts["facets_drawn" + suffix] = double(st.selection.drawn);
+  rep.counts["frame_ms" + suffix] = st.frame_ms;
+  rep.counts["selection_ms" + suffix] = st.selection.seconds * 1e3;
+  rep.skipped["facets_outside_frustum" + suffix] = double(st.selection.outside_frustum);
+  rep.skipped["facets_back_facing" + suffix] = double(st.selection.back_facing);
+  rep.skipped["facets_without_camera" + suffix] = double(st.selection.no_camera);
+  rep.skipped["blending_one_exact_camera" + suffix] = double(st.selection.exact_camera);
+}
+
+struct Renderer {
+  std::unique_ptr<GlContext> context;
+  Model model;
+  std::unique_ptr<ModelRenderer> renderer;
+};
+
+Result<Renderer> open_model(const fs::path& dir) {
+  Renderer r;
+  auto model = load_model(dir);
+  if (!model) return std::unexpected(model.error());
+  r.model = std::move(*model);
+  auto ctx = create_headless_context();
+  if (!ctx) return std::unexpected(ctx.error());
+  r.context = std::move(*ctx);
+  auto mr = ModelRenderer::create(r.model, dir);
+  if (!mr) return std::unexpected(mr.error());
+  r.renderer = std::move(*mr);
+  return r;
+}
+
+}  // namespace
+
+Result<Report> run_render_job(const RenderJob& job) {
+  Stopwatch clock;
+  if (!(job.scale > 0 && job.scale <= 8)) return fail("--scale must be in (0, 8]");
+  auto r = open_model(job.model);
+  if (!r) return std::unexpected(r.error());
+  Result<ViewCamera> view = !job.view_file.empty() ? load_view_file(job.view_file)
+                            : job.view              ? frame_view(r->model, job.source, *job.view)
+                                                    : Result<ViewCamera>(fail("give --view I or --pose FILE"));
+  if (!view) return std::unexpected(view.error());
+  const ViewCamera v = scaled(*view, job.scale);
+  auto fb = Framebuffer::create(v.K.width, v.K.height);
+  if (!fb) return std::unexpected(fb.error());
+  auto st = r->renderer->draw(v, job.draw, *fb);
+  if (!st) return std::unexpected(st.error());
+  if (auto w = write_image(job.out, fb->read_rgb()); !w) return std::unexpected(w.error());
+  Report rep;
+  rep.stage = "render";
+  add_selection(rep, *st, "");
+  rep.counts["triangles"] = double(st->triangles);
+  rep.counts["texture_mib"] = double(r->renderer->texture_bytes()) / (1 << 20);
+  rep.params["geometry"] = std::string(job.draw.geometry == DrawOptions::Geometry::kMesh ? "mesh" : "billboards");
+  rep.params["depth_clip"] = job.draw.depth_clip;
+  rep.params["cameras"] = double(job.draw.selection.cameras);
+  rep.params["width"] = double(v.K.width);
+  rep.params["height"] = double(v.K.height);
+  rep.params["renderer"] = r->context->describe();
+  rep.seconds = clock.seconds();
+  return rep;
+}
+
+Result<Report> run_eval_job(const EvalJob& job) {
+  Stopwatch clock;
+  if (job.frames.empty()) return fail("give the frames to evaluate (--holdout I,J,...)");
+  if (job.source.session.empty()) return fail("--session is needed: the photos come from it");
+  auto r = open_model(job.model);
+  if (!r) return std::unexpected(r.error());
+  auto session = load_session(job.source.session);
+  if (!session) return std::unexpected(session.error());
+  const Session& s = *session;
+  std::set<int> in_model;
+  for (const auto& c : r->model.cameras) in_model.insert(c.session_frame);
+  std::error_code ec;
+  fs::create_directories(job.out, ec);
+  if (ec) return fail("cannot create " + job.out.string() + ": " + ec.message());
+
+  struct Method {
+    std::string name;
+    DrawOptions draw;
+  };
+  std::vector<Method> methods{{"billboards", job.draw}};
+  if (job.baselines) {
+    Method noclip{"no_clip", job.draw};
+    noclip.draw.depth_clip = false;
+    methods.push_back(noclip);
+    if (r->renderer->has_mesh()) {
+      Method mesh{"mesh", job.draw};
+      mesh.draw.geometry = DrawOptions::Geometry::kMesh;
+      methods.push_back(mesh);
+    }
+  }
+  Report rep;
+  rep.stage = "eval";
+  SweepTable table;
+  table.columns = {"frame", "held_out", "mask_pixels"};
+  for (const auto& m : methods)
+    for (const char* q : {"psnr_db_", "ssim_", "coverage_", "frame_ms_"}) table.columns.push_back(q + m.name);
+  std::map<std::string, std::vector<double>> psnr_of, ssim_v, frame_ms, coverage;
+  std::map<std::string, std::vector<double>> psnr_held, psnr_input;
+  Progress progress("eval", job.frames.size());
+  for (int frame : job.frames) {
+    auto view = frame_view(r->model, job.source, frame);
+    if (!view) return std::unexpected(view.error());
+    const bool held = !in_model.count(frame);
+    auto photo = load_color(s, s.frames[size_t(frame)]);
+    if (!photo) return std::unexpected(photo.error());
+    if (photo->width != view->K.width || photo->height != view->K.height)
+      return fail(fmt::format("frame {}: photo is {}x{}, its camera {}x{}", frame, photo->width, photo->height, view->K.width, view->K.height));
+    // The object's pixels and the background colour.
+    ImageU8 object(photo->width, photo->height, 1, 255);
+    std::string mask_source = "whole_image";
+    float bg[3] = {0, 0, 0};
+    const fs::path truth = s.root / "ground_truth" / "depth_color" / fmt::format("{:04d}.exr", frame);
+    if (s.layout == Layout::kObjectCentre) {
+      const Backdrop b = border_backdrop(*photo);
+      for (int c = 0; c < 3 && c < int(b.color.size()); ++c) bg[c] = float(b.color[size_t(c)]) / 255.f;
+    }
+    if (fs::exists(truth)) {
+      auto d = read_image_float(truth);
+      if (!d) return std::unexpected(d.error());
+      for (size_t i = 0; i < object.pixels() && i < d->pixels(); ++i) object.data[i] = d->data[i * size_t(d->channels)] > 0 ? 255 : 0;
+      mask_source = "ground_truth";
+    } else if (s.layout == Layout::kObjectCentre) {
+      if (auto m = backdrop_mask(*photo)) object = std::move(*m), mask_source = "backdrop";
+    }
+    rep.params["mask"] = mask_source;
+    std::vector<ImageU8> drawn;
+    std::vector<DrawStats> stats;
+    for (auto& m : methods) {
+      std::copy(bg, bg + 3, m.draw.background);
+      auto fb = Framebuffer::create(view->K.width, view->K.height);
+      if (!fb) return std::unexpected(fb.error());
+      auto st = r->renderer->draw(*view, m.draw, *fb);
+      if (!st) return std::unexpected(st.error());
+      drawn.push_back(fb->read_rgba());
+      stats.push_back(*st);
+    }
+    ImageU8 mask = object;
+    for (const auto& d : drawn)
+      for (size_t i = 0; i < mask.pixels(); ++i)
+        if (d.data[i * 4 + 3]) mask.data[i] = 255;
+    size_t mask_px = 0, object_px = 0;
+    for (size_t i = 0; i < mask.pixels(); ++i) mask_px += mask.data[i] != 0, object_px += object.data[i] != 0;
+    std::vector<double> row{double(frame), held ? 1.0 : 0.0, double(mask_px)};
+    ImageU8 strip(photo->width * int(1 + methods.size()), photo->height, 3);
+    auto paste = [&](const ImageU8& img, int slot) {
+      for (int y = 0; y < img.height; ++y)
+        for (int x = 0; x < img.width; ++x)
+          for (int c = 0; c < 3; ++c) strip.at(slot * img.width + x, y, c) = img.at(x, y, c);
+    };
+    paste(*photo, 0);
+    for (size_t k = 0; k < methods.size(); ++k) {
+      const ImageU8 rgb = rgb_of(drawn[k]);
+      paste(rgb, int(k) + 1);
+      auto p = psnr(rgb, *photo, &mask);
+      auto q = ssim(rgb, *photo, &mask);
+      if (!p || !q) return fail(fmt::format("frame {}: {}", frame, (!p ? p.error() : q.error()).message));
+      size_t covered = 0;
+      for (size_t i = 0; i < object.pixels(); ++i) covered += object.data[i] && drawn[k].data[i * 4 + 3];
+      const double cov = object_px ? double(covered) / double(object_px) : 0.0;
+      const std::string& n = methods[k].name;
+      psnr_of[n].push_back(*p), ssim_v[n].push_back(*q), frame_ms[n].push_back(stats[k].frame_ms), coverage[n].push_back(cov);
+      (held ? psnr_held : psnr_input)[n].push_back(*p);
+      rep.errors[fmt::format("psnr_db_{}_frame_{:04d}", n, frame)] = *p;
+      for (double x : {*p, *q, cov, stats[k].frame_ms}) row.push_back(x);
+      if (k == 0) add_selection(rep, stats[k], fmt::format("_frame_{:04d}", frame));
+    }
+    table.rows.push_back(row);
+    if (auto w = write_image(job.out / fmt::format("frame_{:04d}.png", frame), strip); !w) return std::unexpected(w.error());
+    progress.tick();
+  }
+  progress.done();
+  auto mean = [](const std::vector<double>& v) {
+    double s = 0;
+    for (double x : v) s += x;
+    return v.empty() ? 0.0 : s / double(v.size());
+  };
+  for (const auto& m : methods) {
+    const std::string& n = m.name;
+    rep.errors["psnr_db_" + n] = mean(psnr_of[n]);
+    rep.errors["ssim_" + n] = mean(ssim_v[n]);
+    rep.counts["coverage_" + n] = mean(coverage[n]);
+    rep.counts["frame_ms_" + n] = mean(frame_ms[n]);
+    if (!psnr_held[n].empty()) rep.errors["psnr_db_" + n + "_held_out"] = mean(psnr_held[n]);
+    if (!psnr_input[n].empty()) rep.errors["psnr_db_" + n + "_input_views"] = mean(psnr_input[n]);
+  }
+  if (psnr_of.count("no_clip")) rep.errors["depth_clip_gain_db"] = rep.errors["psnr_db_billboards"] - rep.errors["psnr_db_no_clip"];
+  if (psnr_of.count("mesh")) rep.errors["billboards_over_mesh_db"] = rep.errors["psnr_db_billboards"] - rep.errors["psnr_db_mesh"];
+  if (!job.baselines) rep.skipped["baselines_not_asked"] = 1;
+  else if (!r->renderer->has_mesh()) rep.skipped["mesh_baseline_no_patch_mesh"] = 1;
+  rep.counts["views"] = double(job.frames.size());
+  rep.counts["held_out_views"] = double(std::count_if(job.frames.begin(), job.frames.end(), [&](int f) { return !in_model.count(f); }));
+  rep.counts["facets"] = double(r->model.facets.size());
+  rep.params["cameras"] = double(job.draw.selection.cameras);
+  rep.params["renderer"] = r->context->describe();
+  if (auto w = table.write_csv(job.out / "eval.csv"); !w) return std::unexpected(w.error());
+  rep.seconds = clock.seconds();
+  return rep;
+}
+
+}  // namespace s2r

@@ -1,0 +1,64 @@
+// `s2r render` and `s2r eval`: a model drawn offscreen (EGL) at a session
+// frame's camera or a view file, and compared with the photos.
+//
+// Evaluation at a frame (held out at reconstruct or an input view): the
+// model is drawn three ways in one run — billboards with depth clipping (the
+// product), billboards without it, and the textured patch mesh (the
+// baseline) — against the same background: the photo's backdrop colour for
+// object-centre sessions, black otherwise. PSNR and SSIM are taken over one
+// mask for all three: the object's pixels (the rig's ground truth, else the
+// backdrop mask, else the whole image) joined with every pixel any of them
+// drew, so drawing onto the background is an error too.
+#pragma once
+
+#include <filesystem>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "core/report.h"
+#include "core/result.h"
+#include "render/model_renderer.h"
+
+namespace s2r {
+
+// Where a session frame's camera comes from (reconstruct's own rules:
+// reconstruct/reconstruct_job.h resolve_frame_poses).
+struct FrameSource {
+  std::filesystem::path session;
+  std::filesystem::path poses;
+  std::filesystem::path calibration;
+};
+
+// A view file (docs/formats.md "View"): {"format": "s2r.view", "version": 1,
+// "intrinsics": {...}, "world_from_camera": 4x4}. Written by the viewer's
+// save key, read by `s2r render --pose`. Non-finite values are rejected.
+Result<ViewCamera> load_view_file(const std::filesystem::path& path);
+Status save_view_file(const std::filesystem::path& path, const ViewCamera& view);
+
+// The camera of session frame `frame`: the model's own when the frame is one
+// of its cameras, else from the session (needs `source.session`).
+Result<ViewCamera> frame_view(const Model& model, const FrameSource& source, int frame);
+
+struct RenderJob {
+  std::filesystem::path model;
+  std::filesystem::path out;  // PNG
+  std::optional<int> view;    // a session frame
+  std::filesystem::path view_file;
+  FrameSource source;
+  DrawOptions draw;
+  double scale = 1;           // image size relative to the view's
+};
+Result<Report> run_render_job(const RenderJob& job);
+
+struct EvalJob {
+  std::filesystem::path model;
+  FrameSource source;
+  std::vector<int> frames;
+  std::filesystem::path out;  // folder: per-view strips, eval.csv, report.json
+  DrawOptions draw;
+  bool baselines = true;      // billboards without clipping and the mesh, in the same run
+};
+Result<Report> run_eval_job(const EvalJob& job);
+
+}  // namespace s2r

@@ -1,0 +1,539 @@
+#include "render/model_renderer.h"
+
+#include <epoxy/gl.h>
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <limits>
+
+#include "core/image_io.h"
+#include "core/mesh.h"
+#include "core/parallel.h"
+#include "core/paths.h"
+#include "core/report.h"
+#include "render/gl_program.h"
+
+namespace s2r {
+
+namespace {
+
+// Shared GLSL: the lens model and the view's projection. The view's vertices
+// go through the same Brown-Conrady model as the photos, and the clip
+// coordinates stay linear in the camera-frame point where the lens is not
+// applied (at or before the near plane), so clipping still works there.
+const char* kCommon = R"(
+vec2 distort(vec2 x, vec4 d, float k3) {
+  float r2 = dot(x, x);
+  float radial = 1.0 + r2 * (d.x + r2 * (d.y + r2 * k3));
+  return x * radial + vec2(2.0 * d.z * x.x * x.y + d.w * (r2 + 2.0 * x.x * x.x),
+                           d.z * (r2 + 2.0 * x.y * x.y) + 2.0 * d.w * x.x * x.y);
+}
+struct Cam { mat4 cfw; vec4 k; vec4 d; vec4 extra; vec4 centre; };  // extra: k3 width height layer; centre.w: max r^2
+layout(std430, binding = 1) readonly buffer Cams { Cam cams[]; };
+)";
+
+const char* kViewUniforms = R"(
+uniform mat4 u_view_cfw;
+uniform vec4 u_view_k;
+uniform vec4 u_view_d;
+uniform float u_view_k3;
+uniform vec2 u_view_size;
+uniform vec2 u_near_far;
+uniform int u_view_distort;
+vec4 to_clip(vec3 world) {
+  vec3 p = (u_view_cfw * vec4(world, 1.0)).xyz;
+  float n = u_near_far.x, f = u_near_far.y;
+  vec2 q = p.xy;
+  if (u_view_distort != 0 && p.z > n) q = distort(p.xy / p.z, u_view_d, u_view_k3) * p.z;
+  float cx = (2.0 * u_view_k.x * q.x + (2.0 * u_view_k.z + 1.0) * p.z) / u_view_size.x - p.z;
+  float cy = p.z - (2.0 * u_view_k.y * q.y + (2.0 * u_view_k.w + 1.0) * p.z) / u_view_size.y;
+  return vec4(cx, cy, (f + n) / (f - n) * p.z - 2.0 * f * n / (f - n), p.z);
+}
+)";
+
+const char* kTexel = R"(
+uniform sampler2DArray u_color;
+uniform sampler2DArray u_dist;
+uniform vec2 u_tex_size;
+// Camera ci at world point P: 0 outside its image, 1 the texel agrees with P
+// (|d - D| < tol: col is set), 2 the camera sees through P (its ray hits
+// nothing, or hits beyond P by more than tol: P is empty space), 3 P is
+// hidden from the camera (D < d - tol: no information).
+int texel_state(int ci, vec3 P, float tol, out vec3 col) {
+  col = vec3(0.0);
+  if (cams[ci].extra.w < 0.0) return 0;
+  vec3 p = (cams[ci].cfw * vec4(P, 1.0)).xyz;
+  if (p.z <= 1e-6) return 0;
+  vec2 xn = p.xy / p.z;
+  if (dot(xn, xn) > cams[ci].centre.w) return 0;  // outside the lens model's field
+  vec2 px = cams[ci].k.xy * distort(xn, cams[ci].d, cams[ci].extra.x) + cams[ci].k.zw;
+  if (px.x < -0.5 || px.y < -0.5 || px.x >= cams[ci].extra.y - 0.5 || px.y >= cams[ci].extra.z - 0.5) return 0;
+  col = texture(u_color, vec3((px + 0.5) / u_tex_size, cams[ci].extra.w)).rgb;
+  float D = texelFetch(u_dist, ivec3(ivec2(floor(px + 0.5)), int(cams[ci].extra.w)), 0).r;
+  float d = length(P - cams[ci].centre.xyz);
+  if (!(D > 0.0) || D > d + tol) return 2;
+  return D < d - tol ? 3 : 1;
+}
+vec3 palette(int ci) { return 0.5 + 0.5 * cos(6.2831853 * (float(ci) * 0.618034 + vec3(0.0, 0.33, 0.67))); }
+)";
+
+const char* kBillboardVertex = R"(
+struct Facet { float cx, cy, cz, size, nx, ny, nz, rel; uint first, count; };
+layout(std430, binding = 0) readonly buffer Facets { Facet facets[]; };
+layout(location = 0) in uint a_facet;
+layout(location = 1) in ivec4 a_cams;
+layout(location = 2) in vec4 a_weights;
+uniform vec3 u_eye;
+uniform vec3 u_up;
+uniform float u_scale;
+out vec3 v_world;
+flat out ivec4 v_cams;
+flat out vec4 v_weights;
+flat out float v_size;
+void main() {
+  Facet f = facets[a_facet];
+  vec3 c = vec3(f.cx, f.cy, f.cz);
+  vec3 v = u_eye - c;
+  float len = length(v);
+  v = len > 0.0 ? v / len : vec3(0.0, 0.0, 1.0);
+  vec3 r = cross(u_up, v);
+  if (dot(r, r) < 1e-12) r = cross(abs(v.x) < 0.9 ? vec3(1.0, 0.0, 0.0) : vec3(0.0, 1.0, 0.0), v);
+  r = normalize(r);
+  vec3 up = cross(v, r);
+  vec2 corner = vec2(float(gl_VertexID & 1), float(gl_VertexID >> 1)) * 2.0 - 1.0;
+  v_world = c + (corner.x * r + corner.y * up) * (0.5 * u_scale * f.size);
+  gl_Position = to_clip(v_world);
+  v_cams = a_cams;
+  v_weights = a_weights;
+  v_size = f.size;
+}
+)";
+
+const char* kBillboardFragment = R"(
+in vec3 v_world;
+flat in ivec4 v_cams;
+flat in vec4 v_weights;
+flat in float v_size;
+uniform int u_clip;
+uniform float u_clip_scale;
+uniform int u_by_camera;
+uniform int u_probe;
+uniform int u_refine;
+uniform vec3 u_eye;
+out vec4 frag;
+// The billboard point P stands in for the surface point on the view ray, up
+// to tol away. Camera ci's distance says where the surface is along its own
+// ray through P; moving P along the view ray by (D - d) / cos(angle) puts it
+// there for a locally flat surface. A few steps, kept within tol of the
+// billboard, and the texel is taken at the refined point.
+vec3 refined(int ci, vec3 P0, float tol, vec3 col0) {
+  vec3 view_dir = normalize(P0 - u_eye);
+  vec3 P = P0;
+  vec3 col = col0;
+  for (int it = 0; it < u_refine; ++it) {
+    vec3 to_p = P - cams[ci].centre.xyz;
+    float d = length(to_p);
+    vec3 c1;
+    int state = texel_state(ci, P, tol, c1);
+    if (state != 1) break;
+    col = c1;
+    float D = texelFetch(u_dist, ivec3(ivec2(floor(cams[ci].k.xy * distort((cams[ci].cfw * vec4(P, 1.0)).xy / (cams[ci].cfw * vec4(P, 1.0)).z, cams[ci].d, cams[ci].extra.x) + cams[ci].k.zw + 0.5)), int(cams[ci].extra.w)), 0).r;
+    float s = (D - d) / max(dot(to_p / d, view_dir), 0.5);
+    vec3 next = P + s * view_dir;
+    if (length(next - P0) > tol) break;
+    P = next;
+  }
+  vec3 c2;
+  if (u_refine > 0 && texel_state(ci, P, tol, c2) == 1) col = c2;
+  return col;
+}
+void main() {
+  vec3 acc = vec3(0.0);
+  float wsum = 0.0;
+  float tol = u_clip_scale * v_size;
+  vec3 col;
+  // The input camera nearest the view carves too: where it sees through
+  // the fragment, the fragment is empty space.
+  if (u_clip != 0 && u_probe >= 0 && texel_state(u_probe, v_world, tol, col) == 2) discard;
+  for (int j = 0; j < 4; ++j) {
+    int ci = v_cams[j];
+    if (ci < 0) break;
+    int state = texel_state(ci, v_world, tol, col);
+    if (state == 0) continue;
+    if (u_clip != 0) {
+      if (state == 2) discard;
+      if (state == 3) continue;
+      if (u_refine > 0) col = refined(ci, v_world, tol, col);
+    }
+    if (u_by_camera != 0) col = palette(ci);
+    acc += v_weights[j] * col;
+    wsum += v_weights[j];
+  }
+  if (!(wsum > 0.0)) discard;
+  frag = vec4(acc / wsum, 1.0);
+}
+)";
+
+const char* kMeshVertex = R"(
+layout(location = 0) in vec3 a_pos;
+out vec3 v_world;
+void main() {
+  v_world = a_pos;
+  gl_Position = to_clip(a_pos);
+}
+)";
+
+// Per fragment: the k best visible cameras by angle, the same weights as the
+// billboards' (render/facet_selection.h), the (k+1)-th as the threshold.
+const char* kMeshFragment = R"(
+in vec3 v_world;
+uniform int u_camera_count;
+uniform int u_k;
+uniform vec3 u_eye;
+uniform float u_tol;
+uniform int u_by_camera;
+uniform int u_flat;
+out vec4 frag;
+void main() {
+  if (u_flat != 0) { frag = vec4(0.9, 0.9, 0.9, 1.0); return; }
+  vec3 to_eye = normalize(u_eye - v_world);
+  float best_a[5];
+  vec3 best_c[5];
+  int n = 0;
+  float fallback_a = 10.0;  // no camera sees the fragment: the nearest by angle that contains it
+  vec3 fallback = vec3(0.0);
+  for (int ci = 0; ci < u_camera_count; ++ci) {
+    vec3 to_cam = normalize(cams[ci].centre.xyz - v_world);
+    float a = atan(length(cross(to_cam, to_eye)), dot(to_cam, to_eye));
+    if (n > u_k && a >= best_a[u_k] && a >= fallback_a) continue;
+    vec3 col;
+    int state = texel_state(ci, v_world, u_tol, col);
+    if (state == 0) continue;
+    if (a < fallback_a) { fallback_a = a; fallback = u_by_camera != 0 ? palette(ci) : col; }
+    if (state != 1) continue;
+    if (u_by_camera != 0) col = palette(ci);
+    int j = min(n, u_k);
+    while (j > 0 && best_a[j - 1] > a) { best_a[j] = best_a[j - 1]; best_c[j] = best_c[j - 1]; --j; }
+    best_a[j] = a;
+    best_c[j] = col;
+    n = min(n + 1, u_k + 1);
+  }
+  if (n == 0) {
+    if (fallback_a > 9.0) discard;
+    frag = vec4(fallback, 1.0);
+    return;
+  }
+  if (best_a[0] < 1e-6) { frag = vec4(best_c[0], 1.0); return; }
+  int used = min(n, u_k);
+  float threshold = n > u_k ? best_a[u_k] : 3.14159265;
+  vec3 acc = vec3(0.0);
+  float wsum = 0.0;
+  for (int j = 0; j < used; ++j) {
+    float w = max(0.0, 1.0 - best_a[j] / threshold) / best_a[j];
+    acc += w * best_c[j];
+    wsum += w;
+  }
+  frag = vec4(wsum > 0.0 ? acc / wsum : best_c[0], 1.0);
+}
+)";
+
+std::string shader(std::initializer_list<const char*> parts) {
+  std::string s = "#version 430 core\n";
+  for (const char* p : parts) s += p;
+  return s;
+}
+
+void set_view_uniforms(const GlProgram& p, const ViewCamera& view, float near_m, float far_m) {
+  const Eigen::Matrix4f cfw = view.world_from_camera.inverse().matrix().cast<float>();
+  const Intrinsics& K = view.K;
+  glUniformMatrix4fv(p.uniform("u_view_cfw"), 1, GL_FALSE, cfw.data());
+  glUniform4f(p.uniform("u_view_k"), float(K.fx), float(K.fy), float(K.cx), float(K.cy));
+  glUniform4f(p.uniform("u_view_d"), float(K.dist[0]), float(K.dist[1]), float(K.dist[2]), float(K.dist[3]));
+  glUniform1f(p.uniform("u_view_k3"), float(K.dist[4]));
+  glUniform2f(p.uniform("u_view_size"), float(K.width), float(K.height));
+  glUniform2f(p.uniform("u_near_far"), near_m, far_m);
+  glUniform1i(p.uniform("u_view_distort"), K.has_distortion() ? 1 : 0);
+  const Eigen::Vector3d eye = view.eye();
+  glUniform3f(p.uniform("u_eye"), float(eye.x()), float(eye.y()), float(eye.z()));
+}
+
+// The largest |x/z|^2 the lens model is trusted at: the image corners'
+// undistorted directions, with 20 % to spare.
+double max_field_r2(const Intrinsics& K) {
+  double r2 = 0;
+  for (double x : {-0.5, K.width - 0.5})
+    for (double y : {-0.5, K.height - 0.5}) {
+      const Eigen::Vector2d xd((x - K.cx) / K.fx, (y - K.cy) / K.fy);
+      const auto xn = K.undistort(xd);
+      r2 = std::max(r2, (xn ? *xn : xd).squaredNorm());
+    }
+  return 1.44 * r2;
+}
+
+// The textured input camera most like the view: near it, looking the same
+// way (the bounds' radius weighs direction against distance). -1: none.
+int nearest_camera(const Model& m, const ViewCamera& view) {
+  const double radius = m.bounds.isEmpty() ? 1.0 : 0.5 * m.bounds.diagonal().norm();
+  const Eigen::Vector3d z = view.world_from_camera.linear().col(2);
+  int best = -1;
+  double best_score = std::numeric_limits<double>::infinity();
+  for (size_t i = 0; i < m.cameras.size(); ++i) {
+    const auto& c = m.cameras[i];
+    if (c.texture.empty()) continue;
+    const double score = (c.world_from_camera.translation() - view.eye()).norm() +
+                         radius * (1 - z.dot(c.world_from_camera.linear().col(2)));
+    if (score < best_score) best_score = score, best = int(i);
+  }
+  return best;
+}
+
+// Silhouette pixels of a photo are often hit by the object but missed by the
+// fused surface through their centre (the surface sits a fraction of a
+// voxel inside, and the edge pixel is part object): such a texel would never
+// pass depth clipping and would carve the fragment as empty space. One pixel
+// around every hit takes the nearest hit's distance instead.
+void extend_silhouette_distance(ImageF& d) {
+  const ImageF in = d;
+  for (int y = 0; y < d.height; ++y)
+    for (int x = 0; x < d.width; ++x) {
+      if (in.at(x, y) > 0) continue;
+      float best = 0;
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+          const int u = x + dx, v = y + dy;
+          if (u < 0 || v < 0 || u >= d.width || v >= d.height) continue;
+          const float z = in.at(u, v);
+          if (z > 0 && (best == 0 || z < best)) best = z;
+        }
+      d.at(x, y) = best;
+    }
+}
+
+}  // namespace
+
+struct ModelRenderer::Programs {
+  GlProgram billboard, mesh;
+};
+
+Result<std::unique_ptr<ModelRenderer>> ModelRenderer::create(const Model& model, const std::filesystem::path& dir,
+                                                             int threads) {
+  if (epoxy_gl_version() < 43)
+    return fail("the model renderer needs OpenGL 4.3 (shader storage buffers); this context has " +
+                std::to_string(epoxy_gl_version() / 10) + "." + std::to_string(epoxy_gl_version() % 10));
+  std::unique_ptr<ModelRenderer> r(new ModelRenderer());
+  r->model_ = model;
+  auto bb = GlProgram::build(shader({kCommon, kViewUniforms, kBillboardVertex}), shader({kCommon, kTexel, kBillboardFragment}));
+  if (!bb) return std::unexpected(bb.error());
+  auto me = GlProgram::build(shader({kCommon, kViewUniforms, kMeshVertex}), shader({kCommon, kTexel, kMeshFragment}));
+  if (!me) return std::unexpected(me.error());
+  r->programs_.reset(new Programs{std::move(*bb), std::move(*me)});
+
+  // Camera textures, read in parallel, into two texture arrays sized to the
+  // largest camera (each layer holds its image in the top-left corner).
+  const size_t n = model.cameras.size();
+  std::vector<RgbazImage> tex(n);
+  std::vector<std::string> errors(n);
+  parallel_for(int(n), threads, [&](int i) {
+    const auto& c = model.cameras[size_t(i)];
+    if (c.texture.empty()) return;
+    auto t = read_rgbaz(dir / c.texture);
+    if (!t) errors[size_t(i)] = t.error().message;
+    else {
+      tex[size_t(i)] = std::move(*t);
+      extend_silhouette_distance(tex[size_t(i)].distance);
+    }
+  });
+  for (const auto& e : errors)
+    if (!e.empty()) return fail(e);
+  int layers = 0;
+  std::vector<int> layer(n, -1);
+  for (size_t i = 0; i < n; ++i) {
+    if (tex[i].rgba.empty()) continue;
+    layer[i] = layers++;
+    r->texture_width_ = std::max(r->texture_width_, tex[i].rgba.width);
+    r->texture_height_ = std::max(r->texture_height_, tex[i].rgba.height);
+  }
+  if (layers == 0) return fail("the model has no camera textures (reconstructed with --no-textures?): nothing to texture facets with");
+  GLint max_layers = 0;
+  glGetIntegerv(GL_MAX_ARRAY_TEXTURE_LAYERS, &max_layers);
+  if (layers > max_layers) return fail(fmt::format("{} camera textures, the OpenGL driver allows {} layers", layers, max_layers));
+  const int W = r->texture_width_, H = r->texture_height_;
+  glGenTextures(1, &r->color_array_);
+  glBindTexture(GL_TEXTURE_2D_ARRAY, r->color_array_);
+  glTexStorage3D(GL_TEXTURE_2D_ARRAY, 1, GL_RGBA8, W, H, layers);
+  glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+  glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+  glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+  glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+  glGenTextures(1, &r->distance_array_);
+  glBindTexture(GL_TEXTURE_2D_ARRAY, r->distance_array_);
+  glTexStorage3D(GL_TEXTURE_2D_ARRAY, 1, GL_R32F, W, H, layers);
+  glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
+  glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+  glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
+  for (size_t i = 0; i < n; ++i) {
+    if (layer[i] < 0) continue;
+    const auto& t = tex[i];
+    if (t.rgba.channels != 4 || !(t.distance.width == t.rgba.width && t.distance.height == t.rgba.height))
+      return fail(model.cameras[i].texture + ": colour and distance channels differ in size");
+    glBindTexture(GL_TEXTURE_2D_ARRAY, r->color_array_);
+    glTexSubImage3D(GL_TEXTURE_2D_ARRAY, 0, 0, 0, layer[i], t.rgba.width, t.rgba.height, 1, GL_RGBA, GL_UNSIGNED_BYTE,
+                    t.rgba.data.data());
+    glBindTexture(GL_TEXTURE_2D_ARRAY, r->distance_array_);
+    glTexSubImage3D(GL_TEXTURE_2D_ARRAY, 0, 0, 0, layer[i], t.rgba.width, t.rgba.height, 1, GL_RED, GL_FLOAT,
+                    t.distance.data.data());
+  }
+  r->texture_bytes_ = size_t(W) * H * layers * 8;
+
+  // Cameras: 32 floats each (the GLSL Cam struct, std430).
+  std::vector<float> cams(n * 32, 0.f);
+  for (size_t i = 0; i < n; ++i) {
+    const auto& c = model.cameras[i];
+    float* d = &cams[i * 32];
+    const Eigen::Matrix4f cfw = c.world_from_camera.inverse().matrix().cast<float>();
+    std::memcpy(d, cfw.data(), 16 * sizeof(float));
+    const Intrinsics& K = c.intrinsics;
+    const float v[16] = {float(K.fx), float(K.fy), float(K.cx), float(K.cy),
+                         float(K.dist[0]), float(K.dist[1]), float(K.dist[2]), float(K.dist[3]),
+                         float(K.dist[4]), float(K.width), float(K.height), float(layer[i]),
+                         float(c.world_from_camera.translation().x()), float(c.world_from_camera.translation().y()),
+                         float(c.world_from_camera.translation().z()), float(max_field_r2(K))};
+    std::memcpy(d + 16, v, sizeof(v));
+  }
+  glGenBuffers(1, &r->camera_ssbo_);
+  glBindBuffer(GL_SHADER_STORAGE_BUFFER, r->camera_ssbo_);
+  glBufferData(GL_SHADER_STORAGE_BUFFER, GLsizeiptr(std::max<size_t>(cams.size(), 32) * sizeof(float)), cams.data(),
+               GL_STATIC_DRAW);
+
+  glGenBuffers(1, &r->facet_ssbo_);
+  glBindBuffer(GL_SHADER_STORAGE_BUFFER, r->facet_ssbo_);
+  glBufferData(GL_SHADER_STORAGE_BUFFER, GLsizeiptr(std::max<size_t>(model.facets.size(), 1) * sizeof(FacetRecord)),
+               model.facets.empty() ? nullptr : model.facets.data(), GL_STATIC_DRAW);
+
+  glGenVertexArrays(1, &r->billboard_vao_);
+  glBindVertexArray(r->billboard_vao_);
+  glGenBuffers(1, &r->instance_vbo_);
+  glBindBuffer(GL_ARRAY_BUFFER, r->instance_vbo_);
+  glEnableVertexAttribArray(0);
+  glVertexAttribIPointer(0, 1, GL_UNSIGNED_INT, sizeof(FacetInstance), reinterpret_cast<void*>(offsetof(FacetInstance, facet)));
+  glVertexAttribDivisor(0, 1);
+  glEnableVertexAttribArray(1);
+  glVertexAttribIPointer(1, 4, GL_INT, sizeof(FacetInstance), reinterpret_cast<void*>(offsetof(FacetInstance, camera)));
+  glVertexAttribDivisor(1, 1);
+  glEnableVertexAttribArray(2);
+  glVertexAttribPointer(2, 4, GL_FLOAT, GL_FALSE, sizeof(FacetInstance), reinterpret_cast<void*>(offsetof(FacetInstance, weight)));
+  glVertexAttribDivisor(2, 1);
+  glBindVertexArray(0);
+
+  if (model.patch_mesh) {
+    auto path = resolve_inside(dir, *model.patch_mesh);
+    auto mesh = path ? read_ply_mesh(*path) : Result<Mesh>(std::unexpected(path.error()));
+    if (!mesh) {
+      spdlog::warn("patch mesh not loaded, the mesh pass is off: {}", mesh.error().message);
+    } else if (!mesh->faces.empty()) {
+      glGenVertexArrays(1, &r->mesh_vao_);
+      glBindVertexArray(r->mesh_vao_);
+      glGenBuffers(1, &r->mesh_vbo_);
+      glBindBuffer(GL_ARRAY_BUFFER, r->mesh_vbo_);
+      glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(mesh->vertices.size() * sizeof(Eigen::Vector3f)), mesh->vertices.data(),
+                   GL_STATIC_DRAW);
+      glEnableVertexAttribArray(0);
+      glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, sizeof(Eigen::Vector3f), nullptr);
+      glGenBuffers(1, &r->mesh_ibo_);
+      glBindBuffer(GL_ELEMENT_ARRAY_BUFFER, r->mesh_ibo_);
+      glBufferData(GL_ELEMENT_ARRAY_BUFFER, GLsizeiptr(mesh->faces.size() * sizeof(Eigen::Vector3i)), mesh->faces.data(),
+                   GL_STATIC_DRAW);
+      glBindVertexArray(0);
+      r->mesh_triangles_ = mesh->faces.size();
+    }
+  }
+  if (glGetError() != GL_NO_ERROR) return fail("OpenGL error while uploading the model");
+  return r;
+}
+
+ModelRenderer::~ModelRenderer() {
+  const unsigned buffers[] = {facet_ssbo_, camera_ssbo_, camera_list_ssbo_, instance_vbo_, mesh_vbo_, mesh_ibo_};
+  for (unsigned b : buffers)
+    if (b) glDeleteBuffers(1, &b);
+  if (billboard_vao_) glDeleteVertexArrays(1, &billboard_vao_);
+  if (mesh_vao_) glDeleteVertexArrays(1, &mesh_vao_);
+  if (color_array_) glDeleteTextures(1, &color_array_);
+  if (distance_array_) glDeleteTextures(1, &distance_array_);
+}
+
+Result<DrawStats> ModelRenderer::draw(const ViewCamera& view, const DrawOptions& o, const Framebuffer& target) {
+  if (view.K.width != target.width() || view.K.height != target.height())
+    return fail(fmt::format("view is {}x{} but the target is {}x{}", view.K.width, view.K.height, target.width(), target.height()));
+  if (!view.world_from_camera.matrix().allFinite()) return fail("view pose is not finite");
+  if (o.geometry == DrawOptions::Geometry::kMesh && !has_mesh()) return fail("the model has no patch mesh to draw");
+  Stopwatch clock;
+  DrawStats st;
+  // Depth range from the model's bounds as seen from the eye.
+  const Eigen::Vector3d eye = view.eye();
+  double far_m = 0;
+  for (int c = 0; c < 8; ++c) far_m = std::max(far_m, (model_.bounds.corner(Eigen::AlignedBox3d::CornerType(c)) - eye).norm());
+  far_m = std::min(std::max(far_m * 1.05, 1e-3), o.far_m);
+  const double outside = model_.bounds.exteriorDistance(eye);
+  const float near_m = float(std::clamp(0.5 * outside, std::max(far_m * 1e-5, 1e-5), std::max(o.near_m, far_m * 1e-5)));
+
+  target.bind();
+  glClearColor(o.background[0], o.background[1], o.background[2], 0.f);
+  glClearDepth(1.0);
+  glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
+  glEnable(GL_DEPTH_TEST);
+  glDepthFunc(GL_LESS);
+  glDisable(GL_CULL_FACE);
+  glDisable(GL_BLEND);
+  glActiveTexture(GL_TEXTURE0);
+  glBindTexture(GL_TEXTURE_2D_ARRAY, color_array_);
+  glActiveTexture(GL_TEXTURE1);
+  glBindTexture(GL_TEXTURE_2D_ARRAY, distance_array_);
+  glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, facet_ssbo_);
+  glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, camera_ssbo_);
+
+  const GlProgram& p = o.geometry == DrawOptions::Geometry::kMesh ? programs_->mesh : programs_->billboard;
+  glUseProgram(p.id());
+  set_view_uniforms(p, view, near_m, float(far_m));
+  glUniform1i(p.uniform("u_color"), 0);
+  glUniform1i(p.uniform("u_dist"), 1);
+  glUniform2f(p.uniform("u_tex_size"), float(texture_width_), float(texture_height_));
+  glUniform1i(p.uniform("u_by_camera"), o.color_by_camera ? 1 : 0);
+  if (o.geometry == DrawOptions::Geometry::kBillboards) {
+    SelectionOptions so = o.selection;
+    so.near_m = near_m;
+    st.selection = select_facets(model_, view, so, instances_);
+    const Eigen::Vector3d up = -view.world_from_camera.linear().col(1);
+    glUniform3f(p.uniform("u_up"), float(up.x()), float(up.y()), float(up.z()));
+    glUniform1f(p.uniform("u_scale"), float(std::max(o.billboard_scale, std::sqrt(3.0))));
+    glUniform1i(p.uniform("u_clip"), o.depth_clip ? 1 : 0);
+    glUniform1f(p.uniform("u_clip_scale"), float(o.clip_scale));
+    glUniform1i(p.uniform("u_probe"), nearest_camera(model_, view));
+    glUniform1i(p.uniform("u_refine"), std::max(0, o.refine_steps));
+    glBindVertexArray(billboard_vao_);
+    glBindBuffer(GL_ARRAY_BUFFER, instance_vbo_);
+    glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(instances_.size() * sizeof(FacetInstance)), instances_.data(), GL_STREAM_DRAW);
+    if (!instances_.empty()) glDrawArraysInstanced(GL_TRIANGLE_STRIP, 0, 4, GLsizei(instances_.size()));
+  } else {
+    glUniform1i(p.uniform("u_camera_count"), int(model_.cameras.size()));
+    glUniform1i(p.uniform("u_k"), std::clamp(o.selection.cameras, 1, kMaxBlendCameras));
+    // The patch mesh lies within about a voxel of the surface the distances
+    // were cast against; twice that counts as visible.
+    glUniform1f(p.uniform("u_tol"), float(2 * model_.voxel_size_m));
+    glUniform1i(p.uniform("u_flat"), 0);
+    if (o.wireframe) glPolygonMode(GL_FRONT_AND_BACK, GL_LINE);
+    glBindVertexArray(mesh_vao_);
+    glDrawElements(GL_TRIANGLES, GLsizei(mesh_triangles_ * 3), GL_UNSIGNED_INT, nullptr);
+    if (o.wireframe) glPolygonMode(GL_FRONT_AND_BACK, GL_FILL);
+    st.triangles = mesh_triangles_;
+  }
+  glBindVertexArray(0);
+  st.cpu_ms = clock.seconds() * 1e3;
+  glFinish();
+  st.frame_ms = clock.seconds() * 1e3;
+  if (const GLenum e = glGetError(); e != GL_NO_ERROR) return fail(fmt::format("OpenGL error 0x{:x} while drawing", e));
+  return st;
+}
+
+}  // namespace s2r

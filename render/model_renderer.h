@@ -1,0 +1,93 @@
+// The drawing core of `s2r view`, `s2r render` and `s2r eval` (DESIGN.md
+// §6-7): one class, the same shaders for the window and the headless context.
+//
+// Billboard pass: every selected facet (render/facet_selection.h) is a square
+// sqrt(3) w wide through its centre, facing the eye. Each fragment projects
+// its world point into the facet's chosen cameras (pinhole + lens model),
+// and with depth clipping takes a camera's texel only where
+// |d - D| < w/2: d the fragment's distance from that camera, D the distance
+// stored in the camera's texture. The passing cameras are blended with the
+// facet's weights (renormalised). Where a camera sees through the fragment
+// (D > d + tol, or its ray hits nothing) the fragment is empty space and is
+// discarded; the input camera most like the view is asked the same
+// question, whichever facet is drawn (free-space carving). No passing
+// camera: discarded too, so the billboards behind show through.
+// Camera distance images are extended by one pixel around silhouettes at
+// load (the fused surface sits slightly inside the photo's edge pixels).
+//
+// Mesh pass (the textured-mesh baseline): the model's patch mesh, each
+// fragment textured from its k best cameras by angle among those whose
+// stored distance agrees with the fragment's within 2 w (visible), same
+// weights; where no camera sees it, the nearest camera by angle whose image
+// contains it (a baseline mesh has no holes).
+//
+// Views are drawn through their lens model too (vertices are distorted), so
+// rendering at an input camera's view reproduces its photo pixel for pixel.
+#pragma once
+
+#include <filesystem>
+#include <memory>
+#include <string>
+
+#include "core/result.h"
+#include "render/facet_selection.h"
+#include "render/framebuffer.h"
+
+namespace s2r {
+
+struct DrawOptions {
+  enum class Geometry { kBillboards, kMesh };
+  Geometry geometry = Geometry::kBillboards;
+  bool depth_clip = true;
+  bool color_by_camera = false;  // flat colour per chosen camera (the seed's figure 6(d))
+  bool wireframe = false;        // mesh pass: edges only
+  double billboard_scale = 1.7320508075688772;  // width / w, >= sqrt(3)
+  double clip_scale = 0.8660254037844386;  // clip threshold / w: sqrt(3)/2, the farthest a
+                                           // point of the voxel lies from its centre
+  int refine_steps = 2;          // texel refinement along the view ray (0 = the seed's texel at the billboard point)
+  SelectionOptions selection;
+  float background[3] = {0.f, 0.f, 0.f};
+  double near_m = 0.01, far_m = 100.0;
+};
+
+struct DrawStats {
+  SelectionStats selection;   // billboards
+  size_t triangles = 0;       // mesh
+  double cpu_ms = 0;          // selection + upload + submit
+  double frame_ms = 0;        // until the image is finished (glFinish)
+};
+
+class ModelRenderer {
+ public:
+  // Needs a current OpenGL 4.3+ context. Loads the camera textures (RGBA and
+  // distance) into texture arrays and the patch mesh when the model has one.
+  static Result<std::unique_ptr<ModelRenderer>> create(const Model& model, const std::filesystem::path& model_dir,
+                                                       int threads = 0);
+  ~ModelRenderer();
+  ModelRenderer(const ModelRenderer&) = delete;
+  ModelRenderer& operator=(const ModelRenderer&) = delete;
+
+  // Draws into `target` (cleared to the background, alpha 0 where nothing is
+  // drawn). The view's image size must equal the target's.
+  Result<DrawStats> draw(const ViewCamera& view, const DrawOptions& options, const Framebuffer& target);
+
+  const Model& model() const { return model_; }
+  bool has_mesh() const { return mesh_triangles_ > 0; }
+  size_t texture_bytes() const { return texture_bytes_; }
+
+ private:
+  ModelRenderer() = default;
+  struct Programs;
+  Model model_;
+  std::unique_ptr<Programs> programs_;
+  unsigned color_array_ = 0, distance_array_ = 0;
+  unsigned facet_ssbo_ = 0, camera_ssbo_ = 0, camera_list_ssbo_ = 0;
+  unsigned billboard_vao_ = 0, instance_vbo_ = 0;
+  unsigned mesh_vao_ = 0, mesh_vbo_ = 0, mesh_ibo_ = 0;
+  size_t mesh_triangles_ = 0;
+  size_t texture_bytes_ = 0;
+  int texture_width_ = 0, texture_height_ = 0;
+  std::vector<FacetInstance> instances_;
+};
+
+}  // namespace s2r
