@@ -34,14 +34,17 @@ struct DrawArgs {
   std::string geometry = "billboards";
   int cameras = 3;
   bool no_clip = false, by_camera = false, no_cull = false;
-  double clip = 0.8660254037844386, scale = 1.7320508075688772;
+  double clip = 0.8660254037844386, scale = 1.7320508075688772, pixel_error = 0.5;
+  int refine = 2;
 };
 
 void add_draw_options(CLI::App* sub, DrawArgs& a) {
-  sub->add_option("--geometry", a.geometry, "billboards | mesh (the textured patch-mesh baseline)")
-      ->check(CLI::IsMember({"billboards", "mesh"}))->capture_default_str();
+  sub->add_option("--geometry", a.geometry, "billboards | mesh (the octree's patch mesh, textured) | surface (the fused surface mesh, textured)")
+      ->check(CLI::IsMember({"billboards", "mesh", "surface"}))->capture_default_str();
   sub->add_option("--cameras", a.cameras, "k: input cameras blended per facet (1-4)")->check(CLI::Range(1, 4))->capture_default_str();
   sub->add_flag("--no-clip", a.no_clip, "billboards without depth clipping (the seed's comparison)");
+  sub->add_option("--pixel-error", a.pixel_error, "clip widens where a texel stays within this many pixels (0: fixed clip)")->capture_default_str();
+  sub->add_option("--refine", a.refine, "texel refinement steps along the view ray (0: the texel at the billboard point)")->capture_default_str();
   sub->add_option("--clip", a.clip, "depth-clipping threshold |d - D| < clip * w")->check(CLI::PositiveNumber)->capture_default_str();
   sub->add_option("--billboard-scale", a.scale, "billboard width / w (at least sqrt 3)")->capture_default_str();
   sub->add_flag("--by-camera", a.by_camera, "colour each facet by its chosen camera");
@@ -50,10 +53,14 @@ void add_draw_options(CLI::App* sub, DrawArgs& a) {
 
 DrawOptions draw_options(const DrawArgs& a) {
   DrawOptions d;
-  d.geometry = a.geometry == "mesh" ? DrawOptions::Geometry::kMesh : DrawOptions::Geometry::kBillboards;
+  d.geometry = a.geometry == "mesh"      ? DrawOptions::Geometry::kMesh
+               : a.geometry == "surface" ? DrawOptions::Geometry::kSurface
+                                         : DrawOptions::Geometry::kBillboards;
   d.selection.cameras = a.cameras;
   d.depth_clip = !a.no_clip;
   d.clip_scale = a.clip;
+  d.pixel_error = a.pixel_error;
+  d.refine_steps = a.refine;
   d.billboard_scale = a.scale;
   d.color_by_camera = a.by_camera;
   d.selection.frustum_cull = d.selection.backface_cull = !a.no_cull;
@@ -109,8 +116,8 @@ void add_eval(CLI::App& app) {
       "eval",
       "Render frames (held out at reconstruct, or input views) and compare with the photos: PSNR and SSIM\n"
       "over the object's pixels joined with every drawn pixel, for billboards and, in the same run, the\n"
-      "baselines (billboards without depth clipping, the textured patch mesh). Writes OUT/frame_NNNN.png\n"
-      "(photo | billboards | no clip | mesh), OUT/eval.csv and OUT/report.json.");
+      "baselines (billboards without depth clipping, the textured patch mesh and fused surface). Writes OUT/frame_NNNN.png\n"
+      "(photo | billboards | no clip | patch mesh | surface mesh), OUT/eval.csv and OUT/report.json.");
   struct Args {
     std::string model, out, holdout;
     bool no_baselines = false;

@@ -71,6 +71,7 @@ struct Model {
   std::vector<OctreeRecord> octree;  // empty when not built
   int octree_max_level = 0;
   std::optional<std::string> patch_mesh;  // relative PLY path
+  std::optional<std::string> surface_mesh;  // relative PLY path: the fused surface
   std::optional<std::string> environment;  // relative path
 };
 

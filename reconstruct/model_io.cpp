@@ -87,6 +87,7 @@ Status save_model(const fs::path& dir, const Model& m) {
     doc["octree_max_level"] = m.octree_max_level;
   }
   if (m.patch_mesh) doc["patch_mesh"] = *m.patch_mesh;
+  if (m.surface_mesh) doc["surface_mesh"] = *m.surface_mesh;
   if (m.environment) doc["environment"] = *m.environment;
   // Payloads first, header last: a model.json always describes complete payloads.
   if (auto st = write_file_atomic(dir / "facets.bin", pack(m.facets)); !st) return st;
@@ -134,6 +135,7 @@ Result<Model> load_model(const fs::path& dir) {
     const uint64_t nf = static_cast<uint64_t>(pay.at("facets").integer("records"));
     const uint64_t nc = static_cast<uint64_t>(pay.at("facet_cameras").integer("records"));
     if (doc.has("patch_mesh")) m.patch_mesh = doc.string("patch_mesh");
+    if (doc.has("surface_mesh")) m.surface_mesh = doc.string("surface_mesh");
     if (doc.has("environment")) m.environment = doc.string("environment");
     auto facets = unpack<FacetRecord>(dir / "facets.bin", nf);
     if (!facets) return std::unexpected(facets.error());

@@ -464,6 +464,7 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   if (!surface.faces.empty()) {
     surface.compute_vertex_normals();
     if (auto st2 = write_ply_mesh(job.out / "surface.ply", surface); !st2) return std::unexpected(st2.error());
+    model.surface_mesh = "surface.ply";
   }
   if (auto st2 = save_model(job.out, model); !st2) return std::unexpected(st2.error());
   timer.lap("write");

@@ -178,10 +178,11 @@ Result<Report> run_eval_job(const EvalJob& job) {
     Method noclip{"no_clip", job.draw};
     noclip.draw.depth_clip = false;
     methods.push_back(noclip);
-    if (r->renderer->has_mesh()) {
-      Method mesh{"mesh", job.draw};
-      mesh.draw.geometry = DrawOptions::Geometry::kMesh;
-      methods.push_back(mesh);
+    for (auto [name, g] : {std::pair{"mesh", DrawOptions::Geometry::kMesh}, std::pair{"surface", DrawOptions::Geometry::kSurface}}) {
+      if (!r->renderer->has_mesh(g)) continue;
+      Method m{name, job.draw};
+      m.draw.geometry = g;
+      methods.push_back(m);
     }
   }
   Report rep;
@@ -281,8 +282,17 @@ Result<Report> run_eval_job(const EvalJob& job) {
   }
   if (psnr_of.count("no_clip")) rep.errors["depth_clip_gain_db"] = rep.errors["psnr_db_billboards"] - rep.errors["psnr_db_no_clip"];
   if (psnr_of.count("mesh")) rep.errors["billboards_over_mesh_db"] = rep.errors["psnr_db_billboards"] - rep.errors["psnr_db_mesh"];
+  if (psnr_of.count("surface")) rep.errors["billboards_over_surface_db"] = rep.errors["psnr_db_billboards"] - rep.errors["psnr_db_surface"];
+  for (const auto& [name, key] : {std::pair{"billboards", "held_out"}, std::pair{"mesh", "held_out"}, std::pair{"surface", "held_out"}})
+    if (rep.errors.count(std::string("psnr_db_") + name + "_" + key) && name != std::string("billboards") &&
+        rep.errors.count("psnr_db_billboards_held_out"))
+      rep.errors[std::string("billboards_over_") + name + "_held_out_db"] =
+          rep.errors["psnr_db_billboards_held_out"] - rep.errors[std::string("psnr_db_") + name + "_held_out"];
   if (!job.baselines) rep.skipped["baselines_not_asked"] = 1;
-  else if (!r->renderer->has_mesh()) rep.skipped["mesh_baseline_no_patch_mesh"] = 1;
+  else {
+    if (!r->renderer->has_mesh(DrawOptions::Geometry::kMesh)) rep.skipped["mesh_baseline_no_patch_mesh"] = 1;
+    if (!r->renderer->has_mesh(DrawOptions::Geometry::kSurface)) rep.skipped["surface_baseline_no_surface_mesh"] = 1;
+  }
   rep.counts["views"] = double(job.frames.size());
   rep.counts["held_out_views"] = double(std::count_if(job.frames.begin(), job.frames.end(), [&](int f) { return !in_model.count(f); }));
   rep.counts["facets"] = double(r->model.facets.size());

@@ -122,6 +122,9 @@ uniform int u_by_camera;
 uniform int u_probe;
 uniform int u_refine;
 uniform vec3 u_eye;
+uniform vec3 u_view_forward;
+uniform float u_view_focal;
+uniform float u_px_error;
 out vec4 frag;
 // The billboard point P stands in for the surface point on the view ray, up
 // to tol away. Camera ci's distance says where the surface is along its own
@@ -149,6 +152,18 @@ vec3 refined(int ci, vec3 P0, float tol, vec3 col0) {
   if (u_refine > 0 && texel_state(ci, P, tol, c2) == 1) col = c2;
   return col;
 }
+// A texel drawn |d - D| off its surface point lands (|d - D| sin theta) away
+// on screen, theta the angle at P between the view ray and camera ci's ray.
+// So the clip may widen where theta is small: up to the depth that keeps the
+// misplacement under u_px_error pixels. At theta = 0 (the view is the
+// camera's) any depth is exact, as in the photo.
+float camera_tol(int ci, float tol) {
+  vec3 view_dir = normalize(v_world - u_eye);
+  vec3 cam_dir = normalize(v_world - cams[ci].centre.xyz);
+  float s = length(cross(view_dir, cam_dir));
+  float pixel_m = u_px_error * dot(v_world - u_eye, u_view_forward) / u_view_focal;
+  return max(tol, pixel_m / max(s, 1e-6));
+}
 void main() {
   vec3 acc = vec3(0.0);
   float wsum = 0.0;
@@ -156,16 +171,16 @@ void main() {
   vec3 col;
   // The input camera nearest the view carves too: where it sees through
   // the fragment, the fragment is empty space.
-  if (u_clip != 0 && u_probe >= 0 && texel_state(u_probe, v_world, tol, col) == 2) discard;
+  if (u_clip != 0 && u_probe >= 0 && texel_state(u_probe, v_world, camera_tol(u_probe, tol), col) == 2) discard;
   for (int j = 0; j < 4; ++j) {
     int ci = v_cams[j];
     if (ci < 0) break;
-    int state = texel_state(ci, v_world, tol, col);
+    int state = texel_state(ci, v_world, camera_tol(ci, tol), col);
     if (state == 0) continue;
     if (u_clip != 0) {
       if (state == 2) discard;
       if (state == 3) continue;
-      if (u_refine > 0) col = refined(ci, v_world, tol, col);
+      if (u_refine > 0) col = refined(ci, v_world, camera_tol(ci, tol), col);
     }
     if (u_by_camera != 0) col = palette(ci);
     acc += v_weights[j] * col;
@@ -427,38 +442,44 @@ Result<std::unique_ptr<ModelRenderer>> ModelRenderer::create(const Model& model,
   glVertexAttribDivisor(2, 1);
   glBindVertexArray(0);
 
-  if (model.patch_mesh) {
-    auto path = resolve_inside(dir, *model.patch_mesh);
+  const std::optional<std::string>* mesh_paths[2] = {&model.patch_mesh, &model.surface_mesh};
+  for (int k = 0; k < 2; ++k) {
+    if (!*mesh_paths[k]) continue;
+    auto path = resolve_inside(dir, **mesh_paths[k]);
     auto mesh = path ? read_ply_mesh(*path) : Result<Mesh>(std::unexpected(path.error()));
     if (!mesh) {
-      spdlog::warn("patch mesh not loaded, the mesh pass is off: {}", mesh.error().message);
-    } else if (!mesh->faces.empty()) {
-      glGenVertexArrays(1, &r->mesh_vao_);
-      glBindVertexArray(r->mesh_vao_);
-      glGenBuffers(1, &r->mesh_vbo_);
-      glBindBuffer(GL_ARRAY_BUFFER, r->mesh_vbo_);
-      glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(mesh->vertices.size() * sizeof(Eigen::Vector3f)), mesh->vertices.data(),
-                   GL_STATIC_DRAW);
-      glEnableVertexAttribArray(0);
-      glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, sizeof(Eigen::Vector3f), nullptr);
-      glGenBuffers(1, &r->mesh_ibo_);
-      glBindBuffer(GL_ELEMENT_ARRAY_BUFFER, r->mesh_ibo_);
-      glBufferData(GL_ELEMENT_ARRAY_BUFFER, GLsizeiptr(mesh->faces.size() * sizeof(Eigen::Vector3i)), mesh->faces.data(),
-                   GL_STATIC_DRAW);
-      glBindVertexArray(0);
-      r->mesh_triangles_ = mesh->faces.size();
+      spdlog::warn("{} not loaded, that mesh pass is off: {}", **mesh_paths[k], mesh.error().message);
+      continue;
     }
+    if (mesh->faces.empty()) continue;
+    GpuMesh& g = r->meshes_[k];
+    glGenVertexArrays(1, &g.vao);
+    glBindVertexArray(g.vao);
+    glGenBuffers(1, &g.vbo);
+    glBindBuffer(GL_ARRAY_BUFFER, g.vbo);
+    glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(mesh->vertices.size() * sizeof(Eigen::Vector3f)), mesh->vertices.data(),
+                 GL_STATIC_DRAW);
+    glEnableVertexAttribArray(0);
+    glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, sizeof(Eigen::Vector3f), nullptr);
+    glGenBuffers(1, &g.ibo);
+    glBindBuffer(GL_ELEMENT_ARRAY_BUFFER, g.ibo);
+    glBufferData(GL_ELEMENT_ARRAY_BUFFER, GLsizeiptr(mesh->faces.size() * sizeof(Eigen::Vector3i)), mesh->faces.data(),
+                 GL_STATIC_DRAW);
+    glBindVertexArray(0);
+    g.triangles = mesh->faces.size();
   }
   if (glGetError() != GL_NO_ERROR) return fail("OpenGL error while uploading the model");
   return r;
 }
 
 ModelRenderer::~ModelRenderer() {
-  const unsigned buffers[] = {facet_ssbo_, camera_ssbo_, camera_list_ssbo_, instance_vbo_, mesh_vbo_, mesh_ibo_};
+  const unsigned buffers[] = {facet_ssbo_, camera_ssbo_, instance_vbo_,
+                              meshes_[0].vbo, meshes_[0].ibo, meshes_[1].vbo, meshes_[1].ibo};
   for (unsigned b : buffers)
     if (b) glDeleteBuffers(1, &b);
   if (billboard_vao_) glDeleteVertexArrays(1, &billboard_vao_);
-  if (mesh_vao_) glDeleteVertexArrays(1, &mesh_vao_);
+  for (const auto& m : meshes_)
+    if (m.vao) glDeleteVertexArrays(1, &m.vao);
   if (color_array_) glDeleteTextures(1, &color_array_);
   if (distance_array_) glDeleteTextures(1, &distance_array_);
 }
@@ -467,7 +488,9 @@ Result<DrawStats> ModelRenderer::draw(const ViewCamera& view, const DrawOptions&
   if (view.K.width != target.width() || view.K.height != target.height())
     return fail(fmt::format("view is {}x{} but the target is {}x{}", view.K.width, view.K.height, target.width(), target.height()));
   if (!view.world_from_camera.matrix().allFinite()) return fail("view pose is not finite");
-  if (o.geometry == DrawOptions::Geometry::kMesh && !has_mesh()) return fail("the model has no patch mesh to draw");
+  const bool mesh_pass = o.geometry != DrawOptions::Geometry::kBillboards;
+  if (mesh_pass && !has_mesh(o.geometry))
+    return fail(o.geometry == DrawOptions::Geometry::kMesh ? "the model has no patch mesh to draw" : "the model has no fused surface mesh to draw");
   Stopwatch clock;
   DrawStats st;
   // Depth range from the model's bounds as seen from the eye.
@@ -493,7 +516,7 @@ Result<DrawStats> ModelRenderer::draw(const ViewCamera& view, const DrawOptions&
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, facet_ssbo_);
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, camera_ssbo_);
 
-  const GlProgram& p = o.geometry == DrawOptions::Geometry::kMesh ? programs_->mesh : programs_->billboard;
+  const GlProgram& p = mesh_pass ? programs_->mesh : programs_->billboard;
   glUseProgram(p.id());
   set_view_uniforms(p, view, near_m, float(far_m));
   glUniform1i(p.uniform("u_color"), 0);
@@ -511,6 +534,10 @@ Result<DrawStats> ModelRenderer::draw(const ViewCamera& view, const DrawOptions&
     glUniform1f(p.uniform("u_clip_scale"), float(o.clip_scale));
     glUniform1i(p.uniform("u_probe"), nearest_camera(model_, view));
     glUniform1i(p.uniform("u_refine"), std::max(0, o.refine_steps));
+    const Eigen::Vector3d fwd = view.world_from_camera.linear().col(2);
+    glUniform3f(p.uniform("u_view_forward"), float(fwd.x()), float(fwd.y()), float(fwd.z()));
+    glUniform1f(p.uniform("u_view_focal"), float(std::sqrt(view.K.fx * view.K.fy)));
+    glUniform1f(p.uniform("u_px_error"), float(std::max(0.0, o.pixel_error)));
     glBindVertexArray(billboard_vao_);
     glBindBuffer(GL_ARRAY_BUFFER, instance_vbo_);
     glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(instances_.size() * sizeof(FacetInstance)), instances_.data(), GL_STREAM_DRAW);
@@ -523,10 +550,11 @@ Result<DrawStats> ModelRenderer::draw(const ViewCamera& view, const DrawOptions&
     glUniform1f(p.uniform("u_tol"), float(2 * model_.voxel_size_m));
     glUniform1i(p.uniform("u_flat"), 0);
     if (o.wireframe) glPolygonMode(GL_FRONT_AND_BACK, GL_LINE);
-    glBindVertexArray(mesh_vao_);
-    glDrawElements(GL_TRIANGLES, GLsizei(mesh_triangles_ * 3), GL_UNSIGNED_INT, nullptr);
+    const GpuMesh& g = meshes_[o.geometry == DrawOptions::Geometry::kSurface ? 1 : 0];
+    glBindVertexArray(g.vao);
+    glDrawElements(GL_TRIANGLES, GLsizei(g.triangles * 3), GL_UNSIGNED_INT, nullptr);
     if (o.wireframe) glPolygonMode(GL_FRONT_AND_BACK, GL_FILL);
-    st.triangles = mesh_triangles_;
+    st.triangles = g.triangles;
   }
   glBindVertexArray(0);
   st.cpu_ms = clock.seconds() * 1e3;

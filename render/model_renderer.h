@@ -36,7 +36,8 @@
 namespace s2r {
 
 struct DrawOptions {
-  enum class Geometry { kBillboards, kMesh };
+  // kMesh: the octree's patch mesh; kSurface: the fused surface mesh.
+  enum class Geometry { kBillboards, kMesh, kSurface };
   Geometry geometry = Geometry::kBillboards;
   bool depth_clip = true;
   bool color_by_camera = false;  // flat colour per chosen camera (the seed's figure 6(d))
@@ -44,6 +45,7 @@ struct DrawOptions {
   double billboard_scale = 1.7320508075688772;  // width / w, >= sqrt(3)
   double clip_scale = 0.8660254037844386;  // clip threshold / w: sqrt(3)/2, the farthest a
                                            // point of the voxel lies from its centre
+  double pixel_error = 0.5;      // clip widens where the texel's misplacement stays under this (px); 0: fixed clip
   int refine_steps = 2;          // texel refinement along the view ray (0 = the seed's texel at the billboard point)
   SelectionOptions selection;
   float background[3] = {0.f, 0.f, 0.f};
@@ -72,7 +74,9 @@ class ModelRenderer {
   Result<DrawStats> draw(const ViewCamera& view, const DrawOptions& options, const Framebuffer& target);
 
   const Model& model() const { return model_; }
-  bool has_mesh() const { return mesh_triangles_ > 0; }
+  bool has_mesh(DrawOptions::Geometry g = DrawOptions::Geometry::kMesh) const {
+    return meshes_[g == DrawOptions::Geometry::kSurface ? 1 : 0].triangles > 0;
+  }
   size_t texture_bytes() const { return texture_bytes_; }
 
  private:
@@ -81,10 +85,13 @@ class ModelRenderer {
   Model model_;
   std::unique_ptr<Programs> programs_;
   unsigned color_array_ = 0, distance_array_ = 0;
-  unsigned facet_ssbo_ = 0, camera_ssbo_ = 0, camera_list_ssbo_ = 0;
+  unsigned facet_ssbo_ = 0, camera_ssbo_ = 0;
   unsigned billboard_vao_ = 0, instance_vbo_ = 0;
-  unsigned mesh_vao_ = 0, mesh_vbo_ = 0, mesh_ibo_ = 0;
-  size_t mesh_triangles_ = 0;
+  struct GpuMesh {
+    unsigned vao = 0, vbo = 0, ibo = 0;
+    size_t triangles = 0;
+  };
+  GpuMesh meshes_[2];  // patch mesh, fused surface
   size_t texture_bytes_ = 0;
   int texture_width_ = 0, texture_height_ = 0;
   std::vector<FacetInstance> instances_;

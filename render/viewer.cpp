@@ -83,11 +83,12 @@ struct ViewerState {
   int saved = 0, shots = 0;
   bool screenshot_now = false, save_view_now = false;
   const Model* model = nullptr;
+  const ModelRenderer* renderer = nullptr;
 };
 
 const char* kHelp =
     "s2r view: left drag orbit | right drag or shift+left pan | wheel zoom\n"
-    "  C depth clipping   1-4 cameras blended   M billboards/mesh   B colour by camera\n"
+    "  C depth clipping   1-4 cameras blended   M billboards / patch mesh / surface   B colour by camera\n"
     "  W wireframe (mesh)   L culling   N / shift+N next / previous input camera   R reset\n"
     "  P save view (view_NNN.json)   S screenshot (screenshot_NNN.png)   H help   Q / Esc quit\n";
 
@@ -102,9 +103,11 @@ void on_key(GLFWwindow* w, int key, int, int action, int mods) {
     case GLFW_KEY_2:
     case GLFW_KEY_3:
     case GLFW_KEY_4: s->draw.selection.cameras = key - GLFW_KEY_0; break;
-    case GLFW_KEY_M:
-      s->draw.geometry = s->draw.geometry == DrawOptions::Geometry::kMesh ? DrawOptions::Geometry::kBillboards
-                                                                          : DrawOptions::Geometry::kMesh;
+    case GLFW_KEY_M:  // billboards -> patch mesh -> fused surface -> billboards
+      s->draw.geometry = s->draw.geometry == DrawOptions::Geometry::kBillboards ? DrawOptions::Geometry::kMesh
+                         : s->draw.geometry == DrawOptions::Geometry::kMesh     ? DrawOptions::Geometry::kSurface
+                                                                                : DrawOptions::Geometry::kBillboards;
+      if (!s->renderer->has_mesh(s->draw.geometry)) s->draw.geometry = DrawOptions::Geometry::kBillboards;
       break;
     case GLFW_KEY_B: s->draw.color_by_camera = !s->draw.color_by_camera; break;
     case GLFW_KEY_W: s->draw.wireframe = !s->draw.wireframe; break;
@@ -185,6 +188,7 @@ Result<Report> run_viewer(const ViewerOptions& opt) {
   if (!renderer) return std::unexpected(renderer.error());
   ViewerState state;
   state.model = &(*renderer)->model();
+  state.renderer = renderer->get();
   state.orbit = make_orbit(*state.model);
   state.draw = opt.draw;
   if (!opt.start_view.empty()) {
@@ -230,7 +234,7 @@ Result<Report> run_viewer(const ViewerOptions& opt) {
     ++frames, ++window_frames;
     ms_sum += st->frame_ms, ms_window += st->frame_ms;
     if (window_frames >= 10 || opt.frames > 0) {
-      const bool mesh = state.draw.geometry == DrawOptions::Geometry::kMesh;
+      const bool mesh = state.draw.geometry != DrawOptions::Geometry::kBillboards;
       const auto& se = st->selection;
       const std::string title =
           mesh ? fmt::format("s2r view | mesh {} triangles | {:.1f} ms", st->triangles, ms_window / window_frames)

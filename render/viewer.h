@@ -4,7 +4,7 @@
 // image of the same view.
 //
 // Mouse: left drag orbits, right drag (or shift + left) pans, wheel zooms.
-// Keys: C depth clipping, 1-4 cameras blended, M billboards/mesh, B colour by
+// Keys: C depth clipping, 1-4 cameras blended, M billboards / patch mesh / surface, B colour by
 // camera, W wireframe (mesh), L culling, N/Shift+N jump to the next/previous
 // input camera, R reset, P save the view (view_NNN.json for s2r render
 // --pose), S screenshot (screenshot_NNN.png), H help, Q/Esc quit.
