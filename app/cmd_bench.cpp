@@ -18,6 +18,7 @@
 #include "reconstruct/model.h"
 #include "reconstruct/reconstruct_job.h"
 #include "reconstruct/rig_eval.h"
+#include "render/model_eval.h"
 #include "core/atomic_file.h"
 
 #include <nlohmann/json.hpp>
@@ -455,6 +456,101 @@ int bench_reconstruct(const fs::path& out, const std::string& scene_in) {
   return finish(rep, out / "report.json");
 }
 
+// PSNR at held-out rig views against frame milliseconds at 1280x720, per
+// drawing setting: blended cameras k, depth clipping, texel refinement, the
+// adaptive clip, and the textured meshes in the same run.
+int bench_render(const fs::path& out, const std::string& scene_in) {
+  Stopwatch total;
+  Report rep;
+  rep.stage = "bench.render";
+  std::error_code ec;
+  fs::create_directories(out, ec);
+  const std::vector<std::string> scenes =
+      scene_in == "blob" ? std::vector<std::string>{"bunny", "fuzzy"} : std::vector<std::string>{scene_in};
+  const std::vector<int> held{3, 11, 19};
+  struct Setting {
+    std::string label;
+    DrawOptions draw;
+  };
+  std::vector<Setting> settings;
+  for (int k = 1; k <= 4; ++k) {
+    Setting s{fmt::format("billboards k={}", k), {}};
+    s.draw.selection.cameras = k;
+    settings.push_back(s);
+  }
+  {
+    Setting s{"billboards k=3, no depth clipping", {}};
+    s.draw.depth_clip = false;
+    settings.push_back(s);
+    s = {"billboards k=3, no refinement", {}};
+    s.draw.refine_steps = 0;
+    settings.push_back(s);
+    s = {"billboards k=3, fixed clip (no widening)", {}};
+    s.draw.pixel_error = 0;
+    settings.push_back(s);
+    s = {"billboards k=3, no culling", {}};
+    s.draw.selection.frustum_cull = s.draw.selection.backface_cull = false;
+    settings.push_back(s);
+    s = {"patch mesh k=3", {}};
+    s.draw.geometry = DrawOptions::Geometry::kMesh;
+    settings.push_back(s);
+    s = {"surface mesh k=3", {}};
+    s.draw.geometry = DrawOptions::Geometry::kSurface;
+    settings.push_back(s);
+  }
+  SweepTable t;
+  t.columns = {"frame_ms", "psnr_db", "ssim", "coverage", "facets_drawn"};
+  for (const auto& scene : scenes) {
+    const fs::path session = out / ("session_" + scene), model = out / ("model_" + scene);
+    fs::remove_all(session, ec);
+    SynthOptions so;
+    so.scene = scene;
+    so.views = 24;
+    so.seed = 3;
+    if (auto made = synth_session(so, session); !made) return error(made.error().message);
+    ReconstructJob job;
+    job.session = session;
+    job.out = model;
+    job.holdout = held;
+    job.quiet = true;
+    auto built = run_reconstruct_job(job);
+    if (!built) return error(built.error().message);
+    rep.counts["facets_" + scene] = built->counts.at("facets");
+    for (const auto& setting : settings) {
+      EvalJob e;
+      e.model = model;
+      e.source.session = session;
+      e.frames = held;
+      e.out = out / ("eval_" + scene);
+      e.draw = setting.draw;
+      e.baselines = false;
+      auto ev = run_eval_job(e);
+      if (!ev) {
+        rep.warnings.push_back(scene + ", " + setting.label + ": " + ev.error().message);
+        continue;
+      }
+      auto timing = time_orbit(model, setting.draw, 1280, 720, 12);
+      if (!timing) return error(timing.error().message);
+      rep.params["renderer"] = timing->renderer;
+      const double p = ev->errors.at("psnr_db_billboards");
+      t.row_labels.push_back(scene + ": " + setting.label);
+      t.rows.push_back({timing->median_ms, p, ev->errors.at("ssim_billboards"), ev->counts.at("coverage_billboards"),
+                        timing->facets_drawn_mean});
+      rep.errors[fmt::format("psnr_db_{}_{}", scene, setting.label)] = p;
+      rep.counts[fmt::format("frame_ms_{}_{}", scene, setting.label)] = timing->median_ms;
+      std::fprintf(stderr, "%s, %s: held-out PSNR %.2f dB, %.1f ms per 1280x720 frame\n", scene.c_str(), setting.label.c_str(), p,
+                   timing->median_ms);
+    }
+  }
+  if (auto st = t.write_csv(out / "render.csv"); !st) return error(st.error().message);
+  PlotSpec spec{"Held-out PSNR against frame time (rig, 1280x720 frames)", "milliseconds per frame",
+                "PSNR at held-out views (dB)", "frame_ms", {"psnr_db"}, true, false, false};
+  if (auto st = plot_png(t, spec, out / "render.png"); !st) rep.warnings.push_back(st.error().message);
+  rep.params["held_out_frames"] = std::string("3,11,19");
+  rep.seconds = total.seconds();
+  return finish(rep, out / "report.json");
+}
+
 }  // namespace
 
 void add_bench_commands(CLI::App& app) {
@@ -465,7 +561,8 @@ void add_bench_commands(CLI::App& app) {
   auto scene = std::make_shared<std::string>("blob");
   sub->add_option("stage", *stage, "rig (render time vs image size), capture (per-frame decode + write overhead), calibrate (error vs views), "
                   "register (pose error vs seconds, Stanford ring scans, against chained PCL ICP; --repeats = seeds), "
-                  "reconstruct (surface error and build seconds vs facet size on the rig, against Open3D TSDF + marching cubes)")
+                  "reconstruct (surface error and build seconds vs facet size on the rig, against Open3D TSDF + marching cubes), "
+                  "render (held-out PSNR vs 1280x720 frame ms per drawing setting, rig bunny and fuzzy, textured meshes in the same run)")
       ->required();
   sub->add_option("--out", *out, "output folder")->required();
   sub->add_option("--repeats", *repeats, "renders per point (median)")->capture_default_str();
@@ -477,7 +574,8 @@ void add_bench_commands(CLI::App& app) {
       if (*stage == "calibrate") return bench_calibrate(*out);
       if (*stage == "register") return bench_register(*out, std::max(1, *repeats));
       if (*stage == "reconstruct") return bench_reconstruct(*out, *scene);
-      std::fprintf(stderr, "s2r bench %s: not yet available in this build (only 'rig', 'capture', 'calibrate', 'register' and 'reconstruct')\n", stage->c_str());
+      if (*stage == "render") return bench_render(*out, *scene);
+      std::fprintf(stderr, "s2r bench %s: not yet available in this build (only 'rig', 'capture', 'calibrate', 'register', 'reconstruct' and 'render')\n", stage->c_str());
       return 2;
     });
   });

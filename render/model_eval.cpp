@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <numbers>
 #include <set>
 
 #include "capture/session.h"
@@ -17,6 +18,7 @@
 #include "reconstruct/fusion.h"
 #include "reconstruct/reconstruct_job.h"
 #include "render/gl_context.h"
+#include "render/viewer.h"
 
 namespace s2r {
 namespace fs = std::filesystem;
@@ -301,6 +303,33 @@ Result<Report> run_eval_job(const EvalJob& job) {
   if (auto w = table.write_csv(job.out / "eval.csv"); !w) return std::unexpected(w.error());
   rep.seconds = clock.seconds();
   return rep;
+}
+
+Result<FrameTiming> time_orbit(const fs::path& model_dir, const DrawOptions& draw, int width, int height, int frames) {
+  if (frames < 1) return fail("time_orbit: at least one frame");
+  auto r = open_model(model_dir);
+  if (!r) return std::unexpected(r.error());
+  auto fb = Framebuffer::create(width, height);
+  if (!fb) return std::unexpected(fb.error());
+  // One frame unmeasured: shader compilation and texture residency.
+  if (auto st = r->renderer->draw(default_orbit_view(r->model, width, height), draw, *fb); !st) return std::unexpected(st.error());
+  std::vector<double> ms;
+  double drawn = 0;
+  for (int i = 0; i < frames; ++i) {
+    const ViewCamera v = default_orbit_view(r->model, width, height, 2 * std::numbers::pi * i / frames);
+    auto st = r->renderer->draw(v, draw, *fb);
+    if (!st) return std::unexpected(st.error());
+    ms.push_back(st->frame_ms);
+    drawn += double(st->selection.drawn);
+  }
+  FrameTiming t;
+  double sum = 0;
+  for (double x : ms) sum += x;
+  t.mean_ms = sum / frames;
+  t.median_ms = median(ms);
+  t.facets_drawn_mean = drawn / frames;
+  t.renderer = r->context->describe();
+  return t;
 }
 
 }  // namespace s2r

@@ -61,4 +61,14 @@ struct EvalJob {
 };
 Result<Report> run_eval_job(const EvalJob& job);
 
+// Frame time on a moving view: `frames` frames of width x height around the
+// model's default orbit (render/viewer.h), each turned by 360/frames deg.
+struct FrameTiming {
+  double mean_ms = 0, median_ms = 0;
+  double facets_drawn_mean = 0;
+  std::string renderer;
+};
+Result<FrameTiming> time_orbit(const std::filesystem::path& model, const DrawOptions& draw, int width, int height,
+                               int frames);
+
 }  // namespace s2r
