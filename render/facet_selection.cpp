@@ -125,6 +125,17 @@ SelectionStats select_facets(const Model& model, const ViewCamera& view, const S
     total.exact_camera += st.exact_camera;
     total.single_camera += st.single_camera;
   }
+  if (o.front_to_back) {
+    std::vector<std::pair<float, uint32_t>> order(out.size());
+    for (size_t i = 0; i < out.size(); ++i) {
+      const float* c = model.facets[out[i].facet].center;
+      order[i] = {float((Eigen::Vector3d(c[0], c[1], c[2]) - eye).squaredNorm()), uint32_t(i)};
+    }
+    std::sort(order.begin(), order.end());
+    std::vector<FacetInstance> sorted(out.size());
+    for (size_t i = 0; i < out.size(); ++i) sorted[i] = out[order[i].second];
+    out.swap(sorted);
+  }
   total.drawn = out.size();
   total.seconds = clock.seconds();
   return total;

@@ -47,6 +47,7 @@ struct SelectionOptions {
   bool backface_cull = true;
   double backface_cos = -0.25;  // cull when normal . to_eye < this
   double near_m = 0.01;
+  bool front_to_back = true;    // sort by distance: occluded fragments fail the depth test before shading
   int threads = 0;
 };
 

@@ -92,6 +92,7 @@ out vec3 v_world;
 flat out ivec4 v_cams;
 flat out vec4 v_weights;
 flat out float v_size;
+flat out float v_rel;
 void main() {
   Facet f = facets[a_facet];
   vec3 c = vec3(f.cx, f.cy, f.cz);
@@ -108,6 +109,7 @@ void main() {
   v_cams = a_cams;
   v_weights = a_weights;
   v_size = f.size;
+  v_rel = f.rel;
 }
 )";
 
@@ -116,11 +118,13 @@ in vec3 v_world;
 flat in ivec4 v_cams;
 flat in vec4 v_weights;
 flat in float v_size;
+flat in float v_rel;
 uniform int u_clip;
 uniform float u_clip_scale;
 uniform int u_by_camera;
 uniform int u_probe;
 uniform int u_refine;
+uniform int u_clip_fuzzy;
 uniform vec3 u_eye;
 uniform vec3 u_view_forward;
 uniform float u_view_focal;
@@ -169,15 +173,19 @@ void main() {
   float wsum = 0.0;
   float tol = u_clip_scale * v_size;
   vec3 col;
+  // Silhouette-only (fuzzy) evidence has no measured depth: its cameras'
+  // distances are the hull's, so clipping against them is arbitrary there.
+  // Those facets are drawn image-based, without the clip.
+  bool clip = u_clip != 0 && (u_clip_fuzzy != 0 || v_rel > 0.0);
   // The input camera nearest the view carves too: where it sees through
   // the fragment, the fragment is empty space.
-  if (u_clip != 0 && u_probe >= 0 && texel_state(u_probe, v_world, camera_tol(u_probe, tol), col) == 2) discard;
+  if (clip && u_probe >= 0 && texel_state(u_probe, v_world, camera_tol(u_probe, tol), col) == 2) discard;
   for (int j = 0; j < 4; ++j) {
     int ci = v_cams[j];
     if (ci < 0) break;
     int state = texel_state(ci, v_world, camera_tol(ci, tol), col);
     if (state == 0) continue;
-    if (u_clip != 0) {
+    if (clip) {
       if (state == 2) discard;
       if (state == 3) continue;
       if (u_refine > 0) col = refined(ci, v_world, camera_tol(ci, tol), col);
@@ -534,6 +542,7 @@ Result<DrawStats> ModelRenderer::draw(const ViewCamera& view, const DrawOptions&
     glUniform1f(p.uniform("u_clip_scale"), float(o.clip_scale));
     glUniform1i(p.uniform("u_probe"), nearest_camera(model_, view));
     glUniform1i(p.uniform("u_refine"), std::max(0, o.refine_steps));
+    glUniform1i(p.uniform("u_clip_fuzzy"), o.clip_fuzzy ? 1 : 0);
     const Eigen::Vector3d fwd = view.world_from_camera.linear().col(2);
     glUniform3f(p.uniform("u_view_forward"), float(fwd.x()), float(fwd.y()), float(fwd.z()));
     glUniform1f(p.uniform("u_view_focal"), float(std::sqrt(view.K.fx * view.K.fy)));

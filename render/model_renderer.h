@@ -46,6 +46,7 @@ struct DrawOptions {
   double clip_scale = 0.8660254037844386;  // clip threshold / w: sqrt(3)/2, the farthest a
                                            // point of the voxel lies from its centre
   double pixel_error = 0.5;      // clip widens where the texel's misplacement stays under this (px); 0: fixed clip
+  bool clip_fuzzy = false;       // also clip facets without measured depth (reliability 0)
   int refine_steps = 2;          // texel refinement along the view ray (0 = the seed's texel at the billboard point)
   SelectionOptions selection;
   float background[3] = {0.f, 0.f, 0.f};
