@@ -347,6 +347,7 @@ Result<std::unique_ptr<ModelRenderer>> ModelRenderer::create(const Model& model,
                 std::to_string(epoxy_gl_version() / 10) + "." + std::to_string(epoxy_gl_version() % 10));
   std::unique_ptr<ModelRenderer> r(new ModelRenderer());
   r->model_ = model;
+  r->has_reliable_ = std::any_of(model.facets.begin(), model.facets.end(), [](const FacetRecord& f) { return f.reliability > 0; });
   auto bb = GlProgram::build(shader({kCommon, kViewUniforms, kBillboardVertex}), shader({kCommon, kTexel, kBillboardFragment}));
   if (!bb) return std::unexpected(bb.error());
   auto me = GlProgram::build(shader({kCommon, kViewUniforms, kMeshVertex}), shader({kCommon, kTexel, kMeshFragment}));
@@ -542,7 +543,8 @@ Result<DrawStats> ModelRenderer::draw(const ViewCamera& view, const DrawOptions&
     glUniform1f(p.uniform("u_clip_scale"), float(o.clip_scale));
     glUniform1i(p.uniform("u_probe"), nearest_camera(model_, view));
     glUniform1i(p.uniform("u_refine"), std::max(0, o.refine_steps));
-    glUniform1i(p.uniform("u_clip_fuzzy"), o.clip_fuzzy ? 1 : 0);
+    // In a silhouette-only model the hull is the geometry, and clipping against it is meaningful.
+    glUniform1i(p.uniform("u_clip_fuzzy"), o.clip_fuzzy || !has_reliable_ ? 1 : 0);
     const Eigen::Vector3d fwd = view.world_from_camera.linear().col(2);
     glUniform3f(p.uniform("u_view_forward"), float(fwd.x()), float(fwd.y()), float(fwd.z()));
     glUniform1f(p.uniform("u_view_focal"), float(std::sqrt(view.K.fx * view.K.fy)));

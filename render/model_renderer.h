@@ -46,7 +46,8 @@ struct DrawOptions {
   double clip_scale = 0.8660254037844386;  // clip threshold / w: sqrt(3)/2, the farthest a
                                            // point of the voxel lies from its centre
   double pixel_error = 0.5;      // clip widens where the texel's misplacement stays under this (px); 0: fixed clip
-  bool clip_fuzzy = false;       // also clip facets without measured depth (reliability 0)
+  bool clip_fuzzy = false;       // also clip facets without measured depth (reliability 0) in models
+                                 // that have depth (silhouette-only models are always clipped)
   int refine_steps = 2;          // texel refinement along the view ray (0 = the seed's texel at the billboard point)
   SelectionOptions selection;
   float background[3] = {0.f, 0.f, 0.f};
@@ -94,6 +95,7 @@ class ModelRenderer {
   };
   GpuMesh meshes_[2];  // patch mesh, fused surface
   size_t texture_bytes_ = 0;
+  bool has_reliable_ = false;  // any facet with measured depth
   int texture_width_ = 0, texture_height_ = 0;
   std::vector<FacetInstance> instances_;
 };
