@@ -65,6 +65,25 @@ TEST(Cli, SynthInspectPreviewWithReports) {
   EXPECT_NE(r.out.find("--voxel"), std::string::npos) << r.out;
   r = s2r("reconstruct --help");
   EXPECT_NE(r.out.find("--geometry"), std::string::npos) << r.out;
+  // Render and eval the model (frame 3 held out), and their clear errors.
+  r = s2r("-q reconstruct " + (dir / "s").string() + " --out " + (dir / "m3").string() + " --holdout 3");
+  ASSERT_EQ(r.code, 0) << r.out;
+  r = s2r("render " + (dir / "m3").string() + " --view 1 --out " + (dir / "r" / "v1.png").string());
+  ASSERT_EQ(r.code, 0) << r.out;
+  EXPECT_TRUE(fs::exists(dir / "r" / "v1.png"));
+  EXPECT_TRUE(fs::exists(dir / "r" / "report.json"));
+  r = s2r("render " + (dir / "m3").string() + " --view 3 --out " + (dir / "r" / "v3.png").string());
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.out.find("--session"), std::string::npos) << r.out;
+  r = s2r("render " + (dir / "m3").string() + " --view 3 --session " + (dir / "s").string() + " --geometry mesh --out " +
+          (dir / "r" / "v3.png").string());
+  EXPECT_EQ(r.code, 0) << r.out;
+  r = s2r("eval " + (dir / "m3").string() + " --session " + (dir / "s").string() + " --holdout 3,1 --out " + (dir / "e").string());
+  ASSERT_EQ(r.code, 0) << r.out;
+  for (const char* f : {"frame_0003.png", "frame_0001.png", "eval.csv", "report.json"}) EXPECT_TRUE(fs::exists(dir / "e" / f)) << f;
+  r = s2r("eval " + (dir / "m3").string() + " --session " + (dir / "s").string() + " --holdout 3,x");
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.out.find("not a frame index"), std::string::npos) << r.out;
   // Writing over an existing session is refused, not silently merged.
   r = s2r("synth --scene blob --views 2 --out " + (dir / "s").string());
   EXPECT_EQ(r.code, 1);
