@@ -1,6 +1,7 @@
 #include "core/image_io.h"
 
 #include <OpenImageIO/imagebuf.h>
+#include <OpenImageIO/imagebufalgo.h>
 #include <OpenImageIO/imageio.h>
 
 #include <algorithm>
@@ -132,6 +133,25 @@ Result<RgbazImage> read_rgbaz(const fs::path& path) {
     out.distance.data[i] = z;
   }
   return out;
+}
+
+Status draw_text(ImageU8& image, int x, int baseline, int size_px, const std::string& text) {
+  if (image.empty() || (image.channels != 3 && image.channels != 4)) return fail("draw_text: an RGB or RGBA image is needed");
+  static const char* kFonts[] = {"/usr/share/fonts/truetype/dejavu/DejaVuSansMono.ttf",
+                                 "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf"};
+  const char* font = nullptr;
+  for (const char* f : kFonts)
+    if (fs::exists(f)) {
+      font = f;
+      break;
+    }
+  if (!font) return fail("draw_text: no DejaVu font (apt-get install fonts-dejavu-core)");
+  oiio::ImageSpec spec(image.width, image.height, image.channels, oiio::TypeDesc::UINT8);
+  oiio::ImageBuf buf(spec, image.data.data());  // wraps the pixels
+  const float white[4] = {1, 1, 1, 1};
+  if (!oiio::ImageBufAlgo::render_text(buf, x, baseline, text, size_px, font, white))
+    return fail("draw_text: " + buf.geterror());
+  return {};
 }
 
 }  // namespace s2r

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <filesystem>
+#include <string>
 
 #include "core/image.h"
 #include "core/result.h"
@@ -37,6 +38,11 @@ struct RgbazImage {
   ImageF distance;  // 1 channel
 };
 Status write_rgbaz(const std::filesystem::path& path, const RgbazImage& image);
+
+// White text into an 8-bit RGB(A) image (OpenImageIO + a DejaVu font from
+// fonts-dejavu-core); `baseline` is the text's baseline row. For on-screen
+// status lines.
+Status draw_text(ImageU8& image, int x, int baseline, int size_px, const std::string& text);
 Result<RgbazImage> read_rgbaz(const std::filesystem::path& path);
 
 }  // namespace s2r

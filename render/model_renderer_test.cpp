@@ -411,6 +411,8 @@ TEST(Viewer, WindowShowsTheHeadlessImageUnderXvfb) {
   auto r = run_viewer(o);
   ASSERT_TRUE(r) << r.error().message;
   EXPECT_EQ(r->counts.at("frames"), 1);
+  EXPECT_EQ(r->counts.at("status_line_on_screen"), 1);
+  EXPECT_NE(std::get<std::string>(r->params.at("status_line")).find("facets 1681 drawn"), std::string::npos);
   auto shot = read_image_u8(o.screenshot);
   ASSERT_TRUE(shot) << shot.error().message;
   ASSERT_TRUE(shot->same_shape(headless));

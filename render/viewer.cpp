@@ -161,6 +161,43 @@ void on_scroll(GLFWwindow* w, double, double dy) {
   s->orbit.distance = std::max(s->orbit.min_distance, s->orbit.distance * std::pow(0.9, dy));
 }
 
+// The status line at the top of the window: text drawn on the CPU into a
+// texture (only when it changes) and blitted over the image. Not part of
+// the frame, so screenshots and `render` stay the model only.
+struct StatusLine {
+  unsigned texture = 0, fbo = 0;
+  int width = 0, height = 20;
+  std::string text;
+  bool broken = false;
+  ~StatusLine() {
+    if (fbo) glDeleteFramebuffers(1, &fbo);
+    if (texture) glDeleteTextures(1, &texture);
+  }
+  void show(const std::string& t, int screen_w, int screen_h) {
+    if (broken || screen_w <= 0 || screen_h <= height) return;
+    if (t != text || screen_w != width) {
+      ImageU8 img(screen_w, height, 3, 0);
+      if (auto st = draw_text(img, 6, 14, 13, t); !st) {
+        spdlog::warn("status line off: {}", st.error().message);
+        broken = true;
+        return;
+      }
+      if (!texture) glGenTextures(1, &texture), glGenFramebuffers(1, &fbo);
+      glBindTexture(GL_TEXTURE_2D, texture);
+      glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
+      glTexImage2D(GL_TEXTURE_2D, 0, GL_RGB8, screen_w, height, 0, GL_RGB, GL_UNSIGNED_BYTE, img.data.data());
+      glBindFramebuffer(GL_READ_FRAMEBUFFER, fbo);
+      glFramebufferTexture2D(GL_READ_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, texture, 0);
+      text = t, width = screen_w;
+    }
+    glBindFramebuffer(GL_READ_FRAMEBUFFER, fbo);
+    glBindFramebuffer(GL_DRAW_FRAMEBUFFER, 0);
+    // Row 0 of the image is the top line: flip into GL's bottom-up screen.
+    glBlitFramebuffer(0, 0, width, height, 0, screen_h, width, screen_h - height, GL_COLOR_BUFFER_BIT, GL_NEAREST);
+    glBindFramebuffer(GL_FRAMEBUFFER, 0);
+  }
+};
+
 fs::path next_free(const std::string& stem, const std::string& ext, int& counter) {
   fs::path p;
   do p = fmt::format("{}_{:03d}{}", stem, counter++, ext);
@@ -213,6 +250,8 @@ Result<Report> run_viewer(const ViewerOptions& opt) {
   int frames = 0, window_frames = 0;
   DrawStats last;
   ViewCamera last_view;
+  StatusLine status;
+  std::string status_text;
   while (!win.should_close()) {
     int width = 0, height = 0;
     win.framebuffer_size(&width, &height);
@@ -230,21 +269,23 @@ Result<Report> run_viewer(const ViewerOptions& opt) {
     if (!st) return std::unexpected(st.error());
     last = *st;
     fb->blit_to_screen(width, height);
-    win.swap_buffers();
     ++frames, ++window_frames;
     ms_sum += st->frame_ms, ms_window += st->frame_ms;
-    if (window_frames >= 10 || opt.frames > 0) {
+    if (window_frames >= 10 || opt.frames > 0 || status.text.empty()) {
       const bool mesh = state.draw.geometry != DrawOptions::Geometry::kBillboards;
       const auto& se = st->selection;
-      const std::string title =
-          mesh ? fmt::format("s2r view | mesh {} triangles | {:.1f} ms", st->triangles, ms_window / window_frames)
-               : fmt::format("s2r view | facets {} drawn, skipped {} frustum {} back | {} cam{} | clip {} | {:.1f} ms",
-                             se.drawn, se.outside_frustum, se.back_facing, state.draw.selection.cameras,
-                             state.draw.color_by_camera ? " (coloured)" : "", state.draw.depth_clip ? "on" : "off",
-                             ms_window / window_frames);
-      glfwSetWindowTitle(win.handle(), title.c_str());
+      status_text =
+          mesh ? fmt::format("{} {} triangles | {:.1f} ms", state.draw.geometry == DrawOptions::Geometry::kMesh ? "patch mesh" : "surface",
+                             st->triangles, ms_window / window_frames)
+               : fmt::format("facets {} drawn, skipped {} frustum {} back-facing {} no camera | {} camera{}{} | clip {} | {:.1f} ms",
+                             se.drawn, se.outside_frustum, se.back_facing, se.no_camera, state.draw.selection.cameras,
+                             state.draw.selection.cameras > 1 ? "s" : "", state.draw.color_by_camera ? " (coloured)" : "",
+                             state.draw.depth_clip ? "on" : "off", ms_window / window_frames);
+      glfwSetWindowTitle(win.handle(), ("s2r view | " + status_text).c_str());
       ms_window = 0, window_frames = 0;
     }
+    status.show(status_text, width, height);
+    win.swap_buffers();
     if (state.screenshot_now) {
       state.screenshot_now = false;
       const fs::path p = next_free("screenshot", ".png", state.shots);
@@ -269,6 +310,8 @@ Result<Report> run_viewer(const ViewerOptions& opt) {
   rep.skipped["facets_outside_frustum_last_frame"] = double(last.selection.outside_frustum);
   rep.skipped["facets_back_facing_last_frame"] = double(last.selection.back_facing);
   rep.params["renderer"] = win.describe();
+  rep.params["status_line"] = status_text;
+  rep.counts["status_line_on_screen"] = status.broken || status.text.empty() ? 0 : 1;
   rep.seconds = total.seconds();
   return rep;
 }
