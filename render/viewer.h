@@ -8,7 +8,8 @@
 // camera, W wireframe (mesh), L culling, N/Shift+N jump to the next/previous
 // input camera, R reset, P save the view (view_NNN.json for s2r render
 // --pose), S screenshot (screenshot_NNN.png), H help, Q/Esc quit.
-// The window title shows facets drawn / skipped and milliseconds per frame.
+// A status line over the image (and the window title) shows facets drawn /
+// skipped and milliseconds per frame; it is not part of screenshots.
 #pragma once
 
 #include <filesystem>
