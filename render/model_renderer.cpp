@@ -58,11 +58,13 @@ uniform sampler2DArray u_color;
 uniform sampler2DArray u_dist;
 uniform vec2 u_tex_size;
 // Camera ci at world point P: 0 outside its image, 1 the texel agrees with P
-// (|d - D| < tol: col is set), 2 the camera sees through P (its ray hits
-// nothing, or hits beyond P by more than tol: P is empty space), 3 P is
-// hidden from the camera (D < d - tol: no information).
-int texel_state(int ci, vec3 P, float tol, out vec3 col) {
+// (|d - D| < tol), 2 the camera sees through P (its ray hits nothing, or
+// hits beyond P by more than tol: P is empty space), 3 P is hidden from the
+// camera (D < d - tol: no information). col, D and d are set from 1 on.
+int camera_at(int ci, vec3 P, float tol, out vec3 col, out float D, out float d) {
   col = vec3(0.0);
+  D = 0.0;
+  d = 0.0;
   if (cams[ci].extra.w < 0.0) return 0;
   vec3 p = (cams[ci].cfw * vec4(P, 1.0)).xyz;
   if (p.z <= 1e-6) return 0;
@@ -71,10 +73,14 @@ int texel_state(int ci, vec3 P, float tol, out vec3 col) {
   vec2 px = cams[ci].k.xy * distort(xn, cams[ci].d, cams[ci].extra.x) + cams[ci].k.zw;
   if (px.x < -0.5 || px.y < -0.5 || px.x >= cams[ci].extra.y - 0.5 || px.y >= cams[ci].extra.z - 0.5) return 0;
   col = texture(u_color, vec3((px + 0.5) / u_tex_size, cams[ci].extra.w)).rgb;
-  float D = texelFetch(u_dist, ivec3(ivec2(floor(px + 0.5)), int(cams[ci].extra.w)), 0).r;
-  float d = length(P - cams[ci].centre.xyz);
+  D = texelFetch(u_dist, ivec3(ivec2(floor(px + 0.5)), int(cams[ci].extra.w)), 0).r;
+  d = length(P - cams[ci].centre.xyz);
   if (!(D > 0.0) || D > d + tol) return 2;
   return D < d - tol ? 3 : 1;
+}
+int texel_state(int ci, vec3 P, float tol, out vec3 col) {
+  float D, d;
+  return camera_at(ci, P, tol, col, D, d);
 }
 vec3 palette(int ci) { return 0.5 + 0.5 * cos(6.2831853 * (float(ci) * 0.618034 + vec3(0.0, 0.33, 0.67))); }
 )";
@@ -140,20 +146,16 @@ vec3 refined(int ci, vec3 P0, float tol, vec3 col0) {
   vec3 P = P0;
   vec3 col = col0;
   for (int it = 0; it < u_refine; ++it) {
-    vec3 to_p = P - cams[ci].centre.xyz;
-    float d = length(to_p);
-    vec3 c1;
-    int state = texel_state(ci, P, tol, c1);
-    if (state != 1) break;
-    col = c1;
-    float D = texelFetch(u_dist, ivec3(ivec2(floor(cams[ci].k.xy * distort((cams[ci].cfw * vec4(P, 1.0)).xy / (cams[ci].cfw * vec4(P, 1.0)).z, cams[ci].d, cams[ci].extra.x) + cams[ci].k.zw + 0.5)), int(cams[ci].extra.w)), 0).r;
-    float s = (D - d) / max(dot(to_p / d, view_dir), 0.5);
-    vec3 next = P + s * view_dir;
+    vec3 c;
+    float D, d;
+    if (camera_at(ci, P, tol, c, D, d) != 1) break;
+    col = c;
+    vec3 next = P + (D - d) / max(dot(normalize(P - cams[ci].centre.xyz), view_dir), 0.5) * view_dir;
     if (length(next - P0) > tol) break;
     P = next;
   }
-  vec3 c2;
-  if (u_refine > 0 && texel_state(ci, P, tol, c2) == 1) col = c2;
+  vec3 c;
+  if (P != P0 && texel_state(ci, P, tol, c) == 1) col = c;
   return col;
 }
 // A texel drawn |d - D| off its surface point lands (|d - D| sin theta) away
