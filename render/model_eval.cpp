@@ -47,31 +47,43 @@ Status save_view_file(const fs::path& path, const ViewCamera& v) {
   return write_file_atomic(path, dump_json(j));
 }
 
+Result<SessionCameras> SessionCameras::load(const FrameSource& src) {
+  SessionCameras c;
+  auto s = load_session(src.session);
+  if (!s) return std::unexpected(s.error());
+  c.session = std::move(*s);
+  auto poses = resolve_frame_poses(c.session, src.poses, src.calibration);
+  if (!poses) return std::unexpected(poses.error());
+  c.poses = std::move(*poses);
+  if (!src.calibration.empty()) {
+    auto cal = load_calibration(src.calibration);
+    if (!cal) return std::unexpected(cal.error());
+    if (cal->color) c.calibrated = cal->color->intrinsics;
+  }
+  return c;
+}
+
+Result<ViewCamera> SessionCameras::view(int frame) const {
+  if (frame < 0 || size_t(frame) >= session.frames.size())
+    return fail(fmt::format("frame {}: the session has frames 0..{}", frame, int(session.frames.size()) - 1));
+  if (!poses.world_from_camera[size_t(frame)]) return fail(fmt::format("frame {} has no pose ({})", frame, poses.source));
+  ViewCamera v;
+  v.world_from_camera = *poses.world_from_camera[size_t(frame)];
+  const auto K = calibrated ? calibrated : session.color_intrinsics(session.frames[size_t(frame)]);
+  if (!K) return fail(fmt::format("frame {} has no colour intrinsics", frame));
+  v.K = *K;
+  return v;
+}
+
 Result<ViewCamera> frame_view(const Model& model, const FrameSource& src, int frame) {
   if (src.session.empty()) {
     for (const auto& c : model.cameras)
       if (c.session_frame == frame) return ViewCamera{c.intrinsics, c.world_from_camera};
     return fail(fmt::format("frame {} is not one of the model's cameras (held out?): give --session to take its camera from the session", frame));
   }
-  auto s = load_session(src.session);
-  if (!s) return std::unexpected(s.error());
-  if (frame < 0 || size_t(frame) >= s->frames.size())
-    return fail(fmt::format("--view {}: the session has frames 0..{}", frame, int(s->frames.size()) - 1));
-  auto poses = resolve_frame_poses(*s, src.poses, src.calibration);
-  if (!poses) return std::unexpected(poses.error());
-  if (!poses->world_from_camera[size_t(frame)]) return fail(fmt::format("frame {} has no pose ({})", frame, poses->source));
-  ViewCamera v;
-  v.world_from_camera = *poses->world_from_camera[size_t(frame)];
-  std::optional<Intrinsics> K;
-  if (!src.calibration.empty()) {
-    auto cal = load_calibration(src.calibration);
-    if (!cal) return std::unexpected(cal.error());
-    if (cal->color) K = cal->color->intrinsics;
-  }
-  if (!K) K = s->color_intrinsics(s->frames[size_t(frame)]);
-  if (!K) return fail(fmt::format("frame {} has no colour intrinsics", frame));
-  v.K = *K;
-  return v;
+  auto cams = SessionCameras::load(src);
+  if (!cams) return std::unexpected(cams.error());
+  return cams->view(frame);
 }
 
 namespace {
@@ -162,9 +174,9 @@ Result<Report> run_eval_job(const EvalJob& job) {
   if (job.source.session.empty()) return fail("--session is needed: the photos come from it");
   auto r = open_model(job.model);
   if (!r) return std::unexpected(r.error());
-  auto session = load_session(job.source.session);
-  if (!session) return std::unexpected(session.error());
-  const Session& s = *session;
+  auto cameras = SessionCameras::load(job.source);
+  if (!cameras) return std::unexpected(cameras.error());
+  const Session& s = cameras->session;
   std::set<int> in_model;
   for (const auto& c : r->model.cameras) in_model.insert(c.session_frame);
   std::error_code ec;
@@ -197,7 +209,7 @@ Result<Report> run_eval_job(const EvalJob& job) {
   std::map<std::string, std::vector<double>> psnr_held, psnr_input;
   Progress progress("eval", job.frames.size());
   for (int frame : job.frames) {
-    auto view = frame_view(r->model, job.source, frame);
+    auto view = cameras->view(frame);
     if (!view) return std::unexpected(view.error());
     const bool held = !in_model.count(frame);
     auto photo = load_color(s, s.frames[size_t(frame)]);
@@ -224,10 +236,10 @@ Result<Report> run_eval_job(const EvalJob& job) {
     rep.params["mask"] = mask_source;
     std::vector<ImageU8> drawn;
     std::vector<DrawStats> stats;
+    auto fb = Framebuffer::create(view->K.width, view->K.height);
+    if (!fb) return std::unexpected(fb.error());
     for (auto& m : methods) {
       std::copy(bg, bg + 3, m.draw.background);
-      auto fb = Framebuffer::create(view->K.width, view->K.height);
-      if (!fb) return std::unexpected(fb.error());
       auto st = r->renderer->draw(*view, m.draw, *fb);
       if (!st) return std::unexpected(st.error());
       drawn.push_back(fb->read_rgba());
@@ -283,13 +295,12 @@ Result<Report> run_eval_job(const EvalJob& job) {
     if (!psnr_input[n].empty()) rep.errors["psnr_db_" + n + "_input_views"] = mean(psnr_input[n]);
   }
   if (psnr_of.count("no_clip")) rep.errors["depth_clip_gain_db"] = rep.errors["psnr_db_billboards"] - rep.errors["psnr_db_no_clip"];
-  if (psnr_of.count("mesh")) rep.errors["billboards_over_mesh_db"] = rep.errors["psnr_db_billboards"] - rep.errors["psnr_db_mesh"];
-  if (psnr_of.count("surface")) rep.errors["billboards_over_surface_db"] = rep.errors["psnr_db_billboards"] - rep.errors["psnr_db_surface"];
-  for (const auto& [name, key] : {std::pair{"billboards", "held_out"}, std::pair{"mesh", "held_out"}, std::pair{"surface", "held_out"}})
-    if (rep.errors.count(std::string("psnr_db_") + name + "_" + key) && name != std::string("billboards") &&
-        rep.errors.count("psnr_db_billboards_held_out"))
-      rep.errors[std::string("billboards_over_") + name + "_held_out_db"] =
-          rep.errors["psnr_db_billboards_held_out"] - rep.errors[std::string("psnr_db_") + name + "_held_out"];
+  for (const std::string n : {"mesh", "surface"}) {
+    if (!psnr_of.count(n)) continue;
+    rep.errors["billboards_over_" + n + "_db"] = rep.errors["psnr_db_billboards"] - rep.errors["psnr_db_" + n];
+    if (!psnr_held[n].empty())
+      rep.errors["billboards_over_" + n + "_held_out_db"] = mean(psnr_held["billboards"]) - mean(psnr_held[n]);
+  }
   if (!job.baselines) rep.skipped["baselines_not_asked"] = 1;
   else {
     if (!r->renderer->has_mesh(DrawOptions::Geometry::kMesh)) rep.skipped["mesh_baseline_no_patch_mesh"] = 1;

@@ -18,6 +18,8 @@
 
 #include "core/report.h"
 #include "core/result.h"
+#include "capture/session.h"
+#include "reconstruct/reconstruct_job.h"
 #include "render/model_renderer.h"
 
 namespace s2r {
@@ -35,6 +37,16 @@ struct FrameSource {
 // save key, read by `s2r render --pose`. Non-finite values are rejected.
 Result<ViewCamera> load_view_file(const std::filesystem::path& path);
 Status save_view_file(const std::filesystem::path& path, const ViewCamera& view);
+
+// A session's frame cameras, loaded once: poses by reconstruct's rules,
+// intrinsics from the calibration when given, else the session's.
+struct SessionCameras {
+  Session session;
+  FramePoses poses;
+  std::optional<Intrinsics> calibrated;
+  static Result<SessionCameras> load(const FrameSource& source);
+  Result<ViewCamera> view(int frame) const;
+};
 
 // The camera of session frame `frame`: the model's own when the frame is one
 // of its cameras, else from the session (needs `source.session`).
