@@ -4,9 +4,16 @@
 // Billboard pass: every selected facet (render/facet_selection.h) is a square
 // sqrt(3) w wide through its centre, facing the eye. Each fragment projects
 // its world point into the facet's chosen cameras (pinhole + lens model),
-// and with depth clipping takes a camera's texel only where
-// |d - D| < w/2: d the fragment's distance from that camera, D the distance
-// stored in the camera's texture. The passing cameras are blended with the
+// and with depth clipping takes a camera's texel only where |d - D| < tol:
+// d the fragment's distance from that camera, D the distance stored in the
+// camera's texture, tol = clip_scale w (sqrt(3)/2 w, the farthest a point of
+// the voxel lies from its centre; the seed's w/2 leaves holes where the
+// surface clips a voxel corner), widened where the texel's on-screen
+// misplacement |d - D| sin(theta) stays under pixel_error (at theta = 0 the
+// view is the camera's and any depth is exact). Passing texels are refined
+// along the view ray (refine_steps). Facets without measured depth
+// (reliability 0) skip the clip in models that have depth. The passing
+// cameras are blended with the
 // facet's weights (renormalised). Where a camera sees through the fragment
 // (D > d + tol, or its ray hits nothing) the fragment is empty space and is
 // discarded; the input camera most like the view is asked the same
