@@ -1,5 +1,8 @@
-// Subcommands that draw: preview, render, eval, view (raytrace and envmap later).
+// Subcommands that draw: preview, render, eval, view, raytrace (envmap later).
+#include <cmath>
+
 #include "app/commands.h"
+#include "render/raytrace_job.h"
 #include "render/model_eval.h"
 #include "render/viewer.h"
 #include "render/session_preview.h"
@@ -182,6 +185,81 @@ void add_view(CLI::App& app) {
   });
 }
 
+// "x,y,z" -> a finite vector; named directions for --gaze.
+std::optional<Eigen::Vector3d> vector3(const std::string& s) {
+  if (s == "forward") return Eigen::Vector3d(0, 0, -1);
+  if (s == "down") return Eigen::Vector3d(0, -1, 0);
+  if (s == "right") return Eigen::Vector3d(1, 0, 0);
+  if (s == "up") return Eigen::Vector3d(0, 1, 0);
+  const auto items = comma_items(s);
+  if (items.size() != 3) return std::nullopt;
+  Eigen::Vector3d v;
+  for (int i = 0; i < 3; ++i) {
+    size_t used = 0;
+    try {
+      v[i] = std::stod(items[i], &used);
+    } catch (...) {
+      return std::nullopt;
+    }
+    if (used != items[i].size() || !std::isfinite(v[i])) return std::nullopt;
+  }
+  return v;
+}
+
+void add_raytrace(CLI::App& app) {
+  auto* sub = app.add_subcommand(
+      "raytrace",
+      "CPU ray tracer (Embree; Whitted: shadows, mirrors, refraction, Phong) with visual-field level of detail: rays get "
+      "less detail, fewer bounces and coarser meshes away from the gaze, and none outside the field of view");
+  struct Args {
+    RaytraceJob job;
+    std::string eye, gaze, out;
+    bool full = false, no_compare = false;
+  };
+  auto a = std::make_shared<Args>();
+  sub->add_option("--scene", a->job.scene,
+                  "the seed's scenes, 8 Stanford bunnies and one light: A mirrors on every screen, B diffuse on every screen, "
+                  "C mirrors on the front screen, D diffuse on the front screen")
+      ->check(CLI::IsMember({"A", "B", "C", "D", "a", "b", "c", "d"}))->capture_default_str();
+  sub->add_option("--mesh", a->job.mesh, "trace this PLY mesh instead (vertex colours used when present)");
+  sub->add_option("--model", a->job.model, "trace a reconstructed model's patch mesh instead, coloured from its cameras");
+  sub->add_flag("--surface", a->job.surface_mesh, "with --model: its fused surface mesh instead of the patch mesh");
+  sub->add_option("--layout", a->job.layout, "cave (front, right and floor screens of a 3 m room) or view (one pinhole image); "
+                  "default: cave for --scene, view for --mesh/--model")->check(CLI::IsMember({"cave", "view"}));
+  sub->add_option("--eye", a->eye, "tracked eye position x,y,z in metres (default: the room's centre at 1.5 m, or in front of the object)");
+  sub->add_option("--gaze", a->gaze, "gaze direction x,y,z, or forward | down | right | up (default: forward, or the view's centre)");
+  sub->add_option("--size", a->job.size, "pixels per screen side (cave) or image width (view)")->capture_default_str();
+  sub->add_option("--reflect-max", a->job.reflect_max, "Reflect_max: reflections/refractions at full detail")->capture_default_str();
+  sub->add_flag("--full", a->full, "no visual-field LOD: every ray at full detail");
+  sub->add_flag("--no-compare", a->no_compare, "skip the full-detail render used for the time ratio and the central-field PSNR");
+  sub->add_option("--n-max", a->job.n_max, "N_max: triangles per object at full detail")->capture_default_str();
+  sub->add_option("--n-min", a->job.n_min, "N_min: triangles per object at the coarsest level")->capture_default_str();
+  sub->add_option("--levels", a->job.levels, "prebuilt mesh levels from N_max to N_min")->capture_default_str();
+  sub->add_option("--threads", a->job.threads, "worker threads (0 = all cores)")->capture_default_str();
+  sub->add_option("--out", a->out, "output folder: one PNG per screen (+ cave.png unfolded), level_*.png, full_*.png, report.json")
+      ->required();
+  sub->callback([a] {
+    set_runner([a] {
+      RaytraceJob job = a->job;
+      job.out = a->out;
+      job.field_lod = !a->full;
+      job.compare_full = !a->no_compare;
+      if (!a->eye.empty()) {
+        job.eye = vector3(a->eye);
+        if (!job.eye || a->eye == "forward" || a->eye == "down" || a->eye == "right" || a->eye == "up")
+          return error("--eye: expected x,y,z in metres, got '" + a->eye + "'");
+      }
+      if (!a->gaze.empty()) {
+        job.gaze = vector3(a->gaze);
+        if (!job.gaze) return error("--gaze: expected x,y,z or forward|down|right|up, got '" + a->gaze + "'");
+      }
+      auto r = run_raytrace_job(job);
+      if (!r) return error(r.error().message);
+      return finish(*r, fs::path(a->out) / "report.json");
+    });
+  });
+}
+
 }  // namespace
 
 void add_render_commands(CLI::App& app) {
@@ -189,7 +267,7 @@ void add_render_commands(CLI::App& app) {
   add_render(app);
   add_eval(app);
   add_view(app);
-  add_not_yet(app, "raytrace", "CPU ray tracer with visual-field LOD");
+  add_raytrace(app);
   add_not_yet(app, "envmap", "Multi-scale environment map");
 }
 }  // namespace s2r::cli

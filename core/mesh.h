@@ -17,6 +17,7 @@ struct Mesh {
   std::vector<Eigen::Vector3f> vertices;
   std::vector<Eigen::Vector3i> faces;
   std::vector<Eigen::Vector3f> normals;  // per vertex; empty until computed
+  std::vector<Eigen::Vector3f> colors;   // per vertex, 0..1; empty when the PLY has none
 
   void compute_vertex_normals();  // area-weighted
   Eigen::AlignedBox3f bounds() const;

@@ -73,6 +73,14 @@ Result<Mesh> read_ply_mesh(const fs::path& path) {
       m.faces.emplace_back(idx[0], idx[k], idx[k + 1]);
   }
   if (m.vertices.empty()) return fail("'" + path.string() + "': PLY has no vertices");
+  bool has_color = false;
+  for (const auto& field : pm.cloud.fields) has_color |= field.name == "rgb" || field.name == "rgba";
+  if (has_color) {
+    pcl::PointCloud<pcl::PointXYZRGB> rgb;
+    pcl::fromPCLPointCloud2(pm.cloud, rgb);
+    m.colors.reserve(rgb.size());
+    for (const auto& p : rgb.points) m.colors.emplace_back(p.r / 255.0f, p.g / 255.0f, p.b / 255.0f);
+  }
   return m;
 }
 

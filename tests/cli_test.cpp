@@ -35,7 +35,7 @@ TEST(Cli, HelpListsTheDesignSubcommands) {
 }
 
 TEST(Cli, LaterStagesSayNotYetAvailable) {
-  auto r = s2r("raytrace scene.json --out x.png");
+  auto r = s2r("envmap pano.hdr --out x");
   EXPECT_EQ(r.code, 2);
   EXPECT_NE(r.out.find("not yet available"), std::string::npos) << r.out;
 }
@@ -84,6 +84,20 @@ TEST(Cli, SynthInspectPreviewWithReports) {
   r = s2r("eval " + (dir / "m3").string() + " --session " + (dir / "s").string() + " --holdout 3,x");
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.out.find("not a frame index"), std::string::npos) << r.out;
+  // Ray-trace the model's patch mesh (coloured from its cameras) and a PLY;
+  // the LOD image equals the full one inside the central field.
+  r = s2r("raytrace --model " + (dir / "m3").string() + " --size 64 --out " + (dir / "rt").string());
+  ASSERT_EQ(r.code, 0) << r.out;
+  for (const char* f : {"view.png", "full_view.png", "level_view.png", "report.json"}) EXPECT_TRUE(fs::exists(dir / "rt" / f)) << f;
+  EXPECT_NE(r.out.find("psnr_central_field_db=100"), std::string::npos) << r.out;
+  r = s2r("raytrace --mesh " + (dir / "m" / "patches.ply").string() + " --size 48 --full --out " + (dir / "rt2").string());
+  ASSERT_EQ(r.code, 0) << r.out;
+  r = s2r("raytrace --mesh " + (dir / "m" / "patches.ply").string() + " --gaze 0,0,0 --out " + (dir / "rt3").string());
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.out.find("gaze"), std::string::npos) << r.out;
+  r = s2r("raytrace --mesh " + (dir / "m" / "patches.ply").string() + " --eye 1,nan,2 --out " + (dir / "rt3").string());
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.out.find("--eye"), std::string::npos) << r.out;
   // Writing over an existing session is refused, not silently merged.
   r = s2r("synth --scene blob --views 2 --out " + (dir / "s").string());
   EXPECT_EQ(r.code, 1);

@@ -6,6 +6,9 @@
 #include "capture/synth_rig.h"
 #include "core/camera_model.h"
 #include "core/image_metrics.h"
+#include "core/mesh.h"
+#include "core/paths.h"
+#include "render/raytrace_job.h"
 
 namespace s2r {
 namespace {
@@ -26,6 +29,57 @@ void BM_RigRender(benchmark::State& state) {
   state.SetItemsProcessed(state.iterations() * int64_t(o.width) * o.height);
 }
 BENCHMARK(BM_RigRender)->Args({320, 1})->Args({320, 2})->Unit(benchmark::kMillisecond);
+
+// The seed's scene C (8 mirror bunnies on the front screen) rendered whole
+// with every object held at one mesh level (0 = N_max): what a coarser level
+// saves per ray. Peer: level 0 in the same run.
+void BM_RaytraceMeshLevel(benchmark::State& state) {
+  auto bunny = read_ply_mesh(data_dir() / "stanford_bunny" / "bun_zipper.ply");
+  if (!bunny) {
+    state.SkipWithError(bunny.error().message.c_str());
+    return;
+  }
+  SeedSceneOptions so;
+  so.scene = 'C';
+  auto scene = seed_scene(*bunny, so);
+  if (!scene) {
+    state.SkipWithError(scene.error().message.c_str());
+    return;
+  }
+  const int level = static_cast<int>(state.range(0));
+  size_t triangles = 0;
+  for (auto& o : scene->objects) {
+    const int k = std::min<int>(level, static_cast<int>(o.mesh.levels.size()) - 1);
+    o.mesh.levels = {o.mesh.levels[k]};
+    triangles = o.mesh.levels[0].size();
+  }
+  auto rt = RayTracer::create(std::move(*scene));
+  const auto screens = cave_screens(256);
+  for (auto _ : state) benchmark::DoNotOptimize(render_layout(**rt, screens, cave_default_eye(), {}).stats.primary);
+  state.counters["triangles_per_object"] = static_cast<double>(triangles);
+}
+BENCHMARK(BM_RaytraceMeshLevel)->DenseRange(0, 5)->Unit(benchmark::kMillisecond);
+
+// Scene C, gaze forward: the full render (0), visual-field LOD (1), and LOD
+// with one mesh level only (2: budgets and skipped pixels, no mesh switching).
+void BM_RaytraceFieldLod(benchmark::State& state) {
+  auto bunny = read_ply_mesh(data_dir() / "stanford_bunny" / "bun_zipper.ply");
+  if (!bunny) {
+    state.SkipWithError(bunny.error().message.c_str());
+    return;
+  }
+  SeedSceneOptions so;
+  so.scene = 'C';
+  so.levels = state.range(0) == 2 ? 1 : 6;
+  auto scene = seed_scene(*bunny, so);
+  auto rt = RayTracer::create(std::move(*scene));
+  TraceOptions o;
+  o.field_lod = state.range(0) > 0;
+  o.gaze = *EyeFrame::look({0, 0, -1});
+  const auto screens = cave_screens(256);
+  for (auto _ : state) benchmark::DoNotOptimize(render_layout(**rt, screens, cave_default_eye(), o).stats.primary);
+}
+BENCHMARK(BM_RaytraceFieldLod)->DenseRange(0, 2)->Unit(benchmark::kMillisecond);
 
 void BM_Ssim(benchmark::State& state) {
   ImageU8 a(640, 480, 3), b(640, 480, 3);

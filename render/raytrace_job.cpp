@@ -1,0 +1,423 @@
+#include "render/raytrace_job.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cctype>
+#include <cstdio>
+#include <limits>
+#include <map>
+
+#include <spdlog/fmt/fmt.h>
+
+#include "core/image_io.h"
+#include "core/parallel.h"
+#include "core/paths.h"
+#include "reconstruct/model.h"
+
+namespace s2r {
+namespace fs = std::filesystem;
+using Eigen::Vector3d;
+using Eigen::Vector3f;
+using Eigen::Vector3i;
+
+std::vector<Screen> cave_screens(int pixels, double size) {
+  const double h = size / 2;
+  std::vector<Screen> s(3);
+  s[0] = {"front", {-h, size, -h}, {size, 0, 0}, {0, -size, 0}, pixels, pixels};
+  s[1] = {"right", {h, size, -h}, {0, 0, size}, {0, -size, 0}, pixels, pixels};
+  s[2] = {"floor", {-h, 0, -h}, {size, 0, 0}, {0, 0, size}, pixels, pixels};
+  return s;
+}
+
+Vector3d cave_default_eye(double size) { return {0, size / 2, 0}; }
+
+ImageU8 unfold_cave(const std::vector<ImageU8>& walls) {
+  if (walls.size() != 3 || walls[0].empty()) return {};
+  const int n = walls[0].width;
+  ImageU8 out(2 * n, 2 * n, 3, 40);
+  const int at[3][2] = {{0, 0}, {n, 0}, {0, n}};
+  for (int w = 0; w < 3; ++w) {
+    if (walls[w].width != n || walls[w].height != n) return {};
+    for (int y = 0; y < n; ++y)
+      for (int x = 0; x < n; ++x)
+        for (int c = 0; c < 3; ++c) out.at(at[w][0] + x, at[w][1] + y, c) = walls[w].at(x, y, std::min(c, walls[w].channels - 1));
+  }
+  return out;
+}
+
+Result<RtMesh> lod_mesh(const Mesh& mesh, size_t n_max, size_t n_min, int levels) {
+  if (mesh.faces.empty()) return fail("mesh has no triangles");
+  if (n_max < 1 || n_min < 1 || n_min > n_max) return fail("need 1 <= N_min <= N_max");
+  std::vector<Vector3i> top = mesh.faces;
+  if (top.size() > n_max) {
+    auto c = build_lod_chain(mesh.vertices, mesh.faces, n_max, 2);
+    if (!c) return std::unexpected(c.error());
+    top = c->back();
+  }
+  // Keep only the vertices the finest level uses.
+  std::vector<int> remap(mesh.vertices.size(), -1);
+  RtMesh out;
+  for (auto& f : top)
+    for (int k = 0; k < 3; ++k) {
+      int& r = remap[f[k]];
+      if (r < 0) {
+        r = static_cast<int>(out.vertices.size());
+        out.vertices.push_back(mesh.vertices[f[k]]);
+        if (!mesh.colors.empty()) out.colors.push_back(mesh.colors[f[k]]);
+      }
+      f[k] = r;
+    }
+  auto chain = build_lod_chain(out.vertices, top, n_min, levels);
+  if (!chain) return std::unexpected(chain.error());
+  out.levels = std::move(*chain);
+  Mesh tmp;
+  tmp.vertices = out.vertices;
+  tmp.faces = out.levels[0];
+  tmp.compute_vertex_normals();
+  out.normals = std::move(tmp.normals);
+  return out;
+}
+
+Mesh icosphere(int subdivisions) {
+  const float t = (1.0f + std::sqrt(5.0f)) / 2.0f;
+  Mesh m;
+  m.vertices = {{-1, t, 0}, {1, t, 0}, {-1, -t, 0}, {1, -t, 0}, {0, -1, t}, {0, 1, t},
+                {0, -1, -t}, {0, 1, -t}, {t, 0, -1}, {t, 0, 1}, {-t, 0, -1}, {-t, 0, 1}};
+  m.faces = {{0, 11, 5}, {0, 5, 1},  {0, 1, 7},   {0, 7, 10}, {0, 10, 11}, {1, 5, 9}, {5, 11, 4},
+             {11, 10, 2}, {10, 7, 6}, {7, 1, 8},  {3, 9, 4},  {3, 4, 2},   {3, 2, 6}, {3, 6, 8},
+             {3, 8, 9},  {4, 9, 5},  {2, 4, 11},  {6, 2, 10}, {8, 6, 7},   {9, 8, 1}};
+  for (auto& v : m.vertices) v.normalize();
+  for (int s = 0; s < subdivisions; ++s) {
+    std::map<std::pair<int, int>, int> mid;
+    auto midpoint = [&](int a, int b) {
+      auto key = std::minmax(a, b);
+      auto it = mid.find(key);
+      if (it != mid.end()) return it->second;
+      m.vertices.push_back((m.vertices[a] + m.vertices[b]).normalized());
+      const int id = static_cast<int>(m.vertices.size()) - 1;
+      mid.emplace(key, id);
+      return id;
+    };
+    std::vector<Vector3i> faces;
+    for (const auto& f : m.faces) {
+      const int a = midpoint(f[0], f[1]), b = midpoint(f[1], f[2]), c = midpoint(f[2], f[0]);
+      faces.insert(faces.end(), {{f[0], a, c}, {f[1], b, a}, {f[2], c, b}, {a, b, c}});
+    }
+    m.faces = std::move(faces);
+  }
+  m.compute_vertex_normals();
+  return m;
+}
+
+Result<RtScene> seed_scene(const Mesh& base, const SeedSceneOptions& o) {
+  if (o.scene < 'A' || o.scene > 'D') return fail(fmt::format("unknown scene '{}' (choose A, B, C or D)", o.scene));
+  auto mesh = lod_mesh(base, o.n_max, o.n_min, o.levels);
+  if (!mesh) return std::unexpected(mesh.error());
+  // Stand the object on y = 0, centred on the y axis, 1 m tall.
+  const Eigen::AlignedBox3f b = base.bounds();
+  const float height = b.sizes().y() > 0 ? b.sizes().y() : b.sizes().maxCoeff();
+  const Vector3f foot(b.center().x(), b.min().y(), b.center().z());
+  for (auto& v : mesh->vertices) v = (v - foot) / height;
+  const bool mirrors = o.scene == 'A' || o.scene == 'C';
+  const bool spread = o.scene == 'A' || o.scene == 'B';
+  // Where each object stands (its foot) and its height: big enough to fill
+  // a good part of the screens it is meant for, as in the seed's figures.
+  std::vector<std::pair<Vector3d, double>> at;
+  if (spread) {
+    for (double x : {-1.2, 0.0, 1.2}) at.push_back({{x, 0.5, -2.6}, 1.3});  // front screen
+    for (double z : {-1.2, 0.0, 1.2}) at.push_back({{2.6, 0.5, z}, 1.3});   // right screen
+    for (double x : {-0.6, 0.6}) at.push_back({{x, 0.0, -0.5}, 0.6});       // floor screen, at the feet
+  } else {
+    for (double y : {0.2, 1.6})  // two rows of four filling the front screen: on the floor and on a shelf
+      for (double x : {-1.5, -0.5, 0.5, 1.5}) at.push_back({{x, y, -2.3}, 1.3});
+  }
+  const Vector3f hues[8] = {{0.85f, 0.3f, 0.25f}, {0.3f, 0.75f, 0.35f}, {0.3f, 0.45f, 0.85f}, {0.85f, 0.75f, 0.3f},
+                            {0.7f, 0.35f, 0.8f},  {0.3f, 0.75f, 0.8f},  {0.9f, 0.55f, 0.3f},  {0.75f, 0.75f, 0.75f}};
+  RtScene s;
+  const Vector3d eye = cave_default_eye();
+  for (size_t i = 0; i < at.size(); ++i) {
+    RtObject obj;
+    obj.name = fmt::format("{}{}", mirrors ? "mirror" : "diffuse", i);
+    obj.mesh = *mesh;
+    obj.mesh.colors.clear();
+    for (auto& v : obj.mesh.vertices) v *= static_cast<float>(at[i].second);
+    const Vector3d& foot_at = at[i].first;
+    const double yaw = std::atan2(eye.x() - foot_at.x(), eye.z() - foot_at.z());  // face the eye
+    obj.world_from_object = Eigen::Translation3d(foot_at) * Eigen::AngleAxisd(yaw, Vector3d::UnitY());
+    if (mirrors) {
+      obj.material.diffuse = 0.35f * hues[i];
+      obj.material.specular = Vector3f::Constant(0.6f);
+      obj.material.shininess = 80;
+      obj.material.reflect = 0.7f;
+    } else {
+      obj.material.diffuse = hues[i];
+      obj.material.specular = Vector3f::Constant(0.15f);
+      obj.material.shininess = 20;
+    }
+    s.objects.push_back(std::move(obj));
+  }
+  s.lights.push_back({Vector3d(1.0, 5.0, 1.0), Vector3f(1.3f, 1.3f, 1.3f)});
+  s.background = {0.18f, 0.2f, 0.26f};
+  return s;
+}
+
+Result<RtObject> model_object(const fs::path& dir, bool surface_mesh, size_t n_min, int levels) {
+  auto model = load_model(dir);
+  if (!model) return std::unexpected(model.error());
+  const auto& rel = surface_mesh ? model->surface_mesh : model->patch_mesh;
+  if (!rel) return fail(fmt::format("model '{}' has no {} (reconstructed without it?)", dir.string(),
+                                    surface_mesh ? "surface mesh" : "patch mesh"));
+  auto mesh = read_ply_mesh(dir / *rel);
+  if (!mesh) return std::unexpected(mesh.error());
+  mesh->compute_vertex_normals();
+  // Colours from the camera that sees each vertex most head-on.
+  std::vector<float> best(mesh->vertices.size(), -2.0f);
+  mesh->colors.assign(mesh->vertices.size(), Vector3f::Constant(0.5f));
+  const float tol = 2.0f * static_cast<float>(model->voxel_size_m);
+  size_t textured = 0;
+  for (const auto& cam : model->cameras) {
+    if (cam.texture.empty()) continue;
+    auto tex = read_rgbaz(dir / cam.texture);
+    if (!tex) return std::unexpected(tex.error());
+    ++textured;
+    const Eigen::Isometry3d cam_from_world = cam.world_from_camera.inverse();
+    const Vector3d centre = cam.world_from_camera.translation();
+    parallel_for(static_cast<int>(mesh->vertices.size()), 0, [&](int i) {
+      const Vector3d p = mesh->vertices[i].cast<double>();
+      const Vector3d to_cam = centre - p;
+      const float facing = static_cast<float>(mesh->normals[i].cast<double>().dot(to_cam.normalized()));
+      if (facing <= best[i]) return;
+      auto px = cam.intrinsics.project(cam_from_world * p);
+      if (!px) return;
+      const int x = static_cast<int>(std::floor(px->x())), y = static_cast<int>(std::floor(px->y()));
+      if (x < 0 || y < 0 || x >= tex->distance.width || y >= tex->distance.height) return;
+      const float d = tex->distance.at(x, y);
+      if (!(d > 0) || std::abs(d - static_cast<float>(to_cam.norm())) > tol) return;
+      best[i] = facing;
+      for (int c = 0; c < 3; ++c) mesh->colors[i][c] = tex->rgba.at(x, y, c) / 255.0f;
+    });
+  }
+  if (textured == 0) return fail("model '" + dir.string() + "' has no camera textures to colour the mesh with");
+  auto rt = lod_mesh(*mesh, mesh->faces.size(), std::max<size_t>(1, std::min(n_min, mesh->faces.size())), levels);
+  if (!rt) return std::unexpected(rt.error());
+  RtObject obj;
+  obj.name = surface_mesh ? "surface mesh" : "patch mesh";
+  obj.mesh = std::move(*rt);
+  obj.material.diffuse = Vector3f::Ones();
+  obj.material.specular = Vector3f::Constant(0.05f);
+  obj.material.ambient = 0.35f;
+  return obj;
+}
+
+LayoutRender render_layout(const RayTracer& tracer, const std::vector<Screen>& screens, const Vector3d& eye,
+                           const TraceOptions& options) {
+  LayoutRender out;
+  Stopwatch sw;
+  for (const auto& s : screens) {
+    out.walls.push_back(tracer.render(s, eye, options));
+    out.stats.add(out.walls.back().stats);
+  }
+  out.seconds = sw.seconds();
+  out.stats.seconds = out.seconds;
+  return out;
+}
+
+double psnr_where(const LayoutRender& test, const LayoutRender& ref, double lo, double hi) {
+  double se = 0;
+  size_t n = 0;
+  for (size_t w = 0; w < test.walls.size() && w < ref.walls.size(); ++w) {
+    const ImageU8 a = to_u8(test.walls[w].color), b = to_u8(ref.walls[w].color);
+    const ImageF& level = test.walls[w].level;
+    for (size_t p = 0; p < level.pixels(); ++p) {
+      if (level.data[p] < lo || level.data[p] > hi) continue;
+      for (int c = 0; c < 3; ++c) {
+        const double d = double(a.data[p * 3 + c]) - double(b.data[p * 3 + c]);
+        se += d * d;
+      }
+      n += 3;
+    }
+  }
+  if (n == 0) return std::numeric_limits<double>::quiet_NaN();
+  if (se == 0) return std::numeric_limits<double>::infinity();
+  return 10 * std::log10(255.0 * 255.0 / (se / n));
+}
+
+namespace {
+
+ImageU8 level_picture(const ImageF& level) {
+  // Black outside the field, dark to bright through the periphery, white in the centre.
+  ImageU8 out(level.width, level.height, 3);
+  for (size_t p = 0; p < level.pixels(); ++p) {
+    const float l = level.data[p];
+    const uint8_t v = static_cast<uint8_t>(std::lround(std::clamp(l, 0.0f, 1.0f) * 255));
+    out.data[p * 3] = v;
+    out.data[p * 3 + 1] = l >= 1 ? 255 : static_cast<uint8_t>(v * 0.6);
+    out.data[p * 3 + 2] = l >= 1 ? 255 : static_cast<uint8_t>(v * 0.3);
+  }
+  return out;
+}
+
+Result<Vector3d> finite(const Vector3d& v, const char* what) {
+  if (!v.allFinite()) return fail(std::string(what) + " must be finite");
+  return v;
+}
+
+}  // namespace
+
+Result<Report> run_raytrace_job(const RaytraceJob& job) {
+  Stopwatch total;
+  Report rep;
+  rep.stage = "raytrace";
+  if (job.out.empty()) return fail("raytrace: --out is required");
+  if (job.size < 8 || job.size > 8192) return fail("raytrace: --size must be within 8..8192");
+  if (job.reflect_max < 0 || job.reflect_max > 64) return fail("raytrace: --reflect-max must be within 0..64");
+  if (job.n_min < 1 || job.n_min > job.n_max) return fail("raytrace: need 1 <= --n-min <= --n-max");
+  if (job.levels < 1 || job.levels > 32) return fail("raytrace: --levels must be within 1..32");
+  if (job.eye) {
+    if (auto e = finite(*job.eye, "--eye"); !e) return std::unexpected(e.error());
+  }
+  if (job.gaze && (!job.gaze->allFinite() || job.gaze->norm() == 0))
+    return fail("raytrace: --gaze must be a finite, non-zero direction");
+  const bool seed = job.mesh.empty() && job.model.empty();
+  if (!job.mesh.empty() && !job.model.empty()) return fail("raytrace: give --mesh or --model, not both");
+  const std::string layout = job.layout.empty() ? (seed ? "cave" : "view") : job.layout;
+  if (layout != "cave" && layout != "view") return fail("raytrace: --layout must be 'cave' or 'view'");
+
+  RtScene scene;
+  if (seed) {
+    if (job.scene.size() != 1) return fail("raytrace: --scene must be A, B, C or D");
+    const fs::path data = job.data_dir.empty() ? data_dir() : job.data_dir;
+    const fs::path ply = data / "stanford_bunny" / "bun_zipper.ply";
+    auto bunny = read_ply_mesh(ply);
+    if (!bunny) return fail("the seed's scenes need the Stanford bunny: " + bunny.error().message);
+    SeedSceneOptions so;
+    so.scene = static_cast<char>(std::toupper(job.scene[0]));
+    so.n_max = job.n_max;
+    so.n_min = job.n_min;
+    so.levels = job.levels;
+    auto s = seed_scene(*bunny, so);
+    if (!s) return std::unexpected(s.error());
+    scene = std::move(*s);
+    rep.params["scene"] = std::string(1, so.scene);
+  } else if (!job.model.empty()) {
+    auto obj = model_object(job.model, job.surface_mesh, job.n_min, job.levels);
+    if (!obj) return std::unexpected(obj.error());
+    scene.objects.push_back(std::move(*obj));
+    rep.params["model"] = job.model.string();
+  } else {
+    auto mesh = read_ply_mesh(job.mesh);
+    if (!mesh) return std::unexpected(mesh.error());
+    auto rt = lod_mesh(*mesh, std::min(job.n_max, mesh->faces.size()),
+                       std::min(job.n_min, std::min(job.n_max, mesh->faces.size())), job.levels);
+    if (!rt) return std::unexpected(rt.error());
+    RtObject obj;
+    obj.name = job.mesh.filename().string();
+    obj.mesh = std::move(*rt);
+    scene.objects.push_back(std::move(obj));
+    rep.params["mesh"] = job.mesh.string();
+  }
+
+  // Where the eye is and what it looks at.
+  std::vector<Screen> screens;
+  Vector3d eye;
+  Vector3d gaze = job.gaze.value_or(Vector3d(0, 0, -1));
+  if (layout == "cave") {
+    eye = job.eye.value_or(cave_default_eye());
+    screens = cave_screens(job.size);
+  } else {
+    Eigen::AlignedBox3f box;
+    for (const auto& o : scene.objects)
+      for (const auto& v : o.mesh.vertices) box.extend((o.world_from_object.cast<float>() * v));
+    const Vector3d centre = box.center().cast<double>();
+    const double radius = std::max(1e-6, 0.5 * static_cast<double>(box.sizes().norm()));
+    eye = job.eye.value_or(centre + Vector3d(0.35, 0.35, 1.0).normalized() * radius * 2.6);
+    // The view looks along the gaze when one is given, else at the object.
+    const Vector3d forward = job.gaze ? job.gaze->normalized() : Vector3d((centre - eye).normalized());
+    if (!job.gaze) gaze = forward;
+    screens = {Screen::pinhole(eye, forward, Vector3d::UnitY(), 45, job.size, job.size * 3 / 4)};
+    if (scene.lights.empty()) scene.lights.push_back({eye + Vector3d(0, radius * 2, 0), Eigen::Vector3f::Ones()});
+  }
+  if (auto g = finite(gaze, "--gaze"); !g) return std::unexpected(g.error());
+  for (const auto& s : screens)
+    if (auto st = s.validate(); !st) return std::unexpected(st.error());
+  auto frame = EyeFrame::look(gaze);
+  if (!frame) return fail("raytrace: " + frame.error().message);
+
+  size_t triangles_max = 0, triangles_min = 0;
+  for (const auto& o : scene.objects) triangles_max += o.mesh.triangles(0), triangles_min += o.mesh.levels.back().size();
+  auto tracer = RayTracer::create(std::move(scene));
+  if (!tracer) return std::unexpected(tracer.error());
+  const RayTracer& rt = **tracer;
+
+  TraceOptions opt;
+  opt.reflect_max = job.reflect_max;
+  opt.field_lod = job.field_lod;
+  opt.gaze = *frame;
+  opt.threads = job.threads;
+  if (!job.quiet) std::fprintf(stderr, "raytrace: %zu screens of %dx%d, %s\n", screens.size(), screens[0].width, screens[0].height,
+                               job.field_lod ? "visual-field LOD" : "full detail");
+  // With a comparison to make, one untimed render first: the first pass pays
+  // for page faults and cold caches, which would bias the ratio.
+  if (job.compare_full && job.field_lod) render_layout(rt, screens, eye, opt);
+  const LayoutRender main = render_layout(rt, screens, eye, opt);
+  std::error_code ec;
+  fs::create_directories(job.out, ec);
+  std::vector<ImageU8> walls;
+  for (size_t i = 0; i < screens.size(); ++i) {
+    walls.push_back(to_u8(main.walls[i].color));
+    if (auto st = write_image(job.out / (screens[i].name + ".png"), walls.back()); !st) return std::unexpected(st.error());
+    if (job.field_lod)
+      if (auto st = write_image(job.out / ("level_" + screens[i].name + ".png"), level_picture(main.walls[i].level)); !st)
+        return std::unexpected(st.error());
+  }
+  if (layout == "cave")
+    if (auto st = write_image(job.out / "cave.png", unfold_cave(walls)); !st) return std::unexpected(st.error());
+
+  const TraceStats& s = main.stats;
+  rep.counts["pixels"] = static_cast<double>(s.pixels);
+  rep.counts["primary_rays"] = static_cast<double>(s.primary);
+  rep.counts["secondary_rays"] = static_cast<double>(s.secondary);
+  rep.counts["shadow_rays"] = static_cast<double>(s.shadow);
+  rep.counts["central_pixels"] = static_cast<double>(s.central);
+  rep.counts["total_internal_reflections"] = static_cast<double>(s.total_internal);
+  rep.counts["triangles_full_detail"] = static_cast<double>(triangles_max);
+  rep.counts["triangles_coarsest"] = static_cast<double>(triangles_min);
+  rep.counts["top_level_scenes"] = static_cast<double>(rt.top_scenes());
+  rep.counts["render_seconds"] = main.seconds;
+  rep.counts["bvh_build_seconds"] = rt.build_seconds();
+  rep.skipped["pixels_outside_visual_field"] = static_cast<double>(s.outside_field);
+  rep.skipped["branches_beyond_reflect_budget"] = static_cast<double>(s.depth_cut);
+  size_t coarser = 0;
+  for (int q = 1; q < RayTracer::kQuanta; ++q)
+    if (rt.detail_for(static_cast<double>(q) / RayTracer::kQuanta) != rt.detail_for(1.0)) coarser += s.rays_per_quantum[q];
+  rep.skipped["primary_rays_on_coarser_meshes"] = static_cast<double>(coarser);
+  rep.params["layout"] = layout;
+  rep.params["eye"] = fmt::format("{},{},{}", eye.x(), eye.y(), eye.z());
+  rep.params["gaze"] = fmt::format("{:.4f},{:.4f},{:.4f}", frame->forward.x(), frame->forward.y(), frame->forward.z());
+  rep.params["reflect_max"] = static_cast<double>(job.reflect_max);
+  rep.params["field_lod"] = job.field_lod;
+
+  if (job.compare_full && job.field_lod) {
+    TraceOptions full = opt;
+    full.field_lod = false;
+    const LayoutRender ref = render_layout(rt, screens, eye, full);
+    for (size_t i = 0; i < screens.size(); ++i)
+      if (auto st = write_image(job.out / ("full_" + screens[i].name + ".png"), to_u8(ref.walls[i].color)); !st)
+        return std::unexpected(st.error());
+    const double central = psnr_where(main, ref, 1.0, 1.0), all = psnr_where(main, ref, 0.0, 1.0);
+    // JSON has no infinity: identical images are reported as 100 dB and flagged.
+    rep.errors["psnr_central_field_db"] = std::isinf(central) ? 100.0 : central;
+    rep.errors["psnr_all_pixels_db"] = std::isinf(all) ? 100.0 : all;
+    rep.params["central_field_identical"] = std::isinf(central);
+    rep.counts["full_render_seconds"] = ref.seconds;
+    rep.errors["time_ratio_lod_over_full"] = main.seconds / std::max(1e-9, ref.seconds);
+    if (!job.quiet)
+      std::fprintf(stderr, "raytrace: LOD %.3f s, full %.3f s (ratio %.3f); PSNR in the central field %s, all pixels %.2f dB\n",
+                   main.seconds, ref.seconds, main.seconds / std::max(1e-9, ref.seconds),
+                   std::isinf(central) ? "identical" : fmt::format("{:.2f} dB", central).c_str(), all);
+  }
+  rep.seconds = total.seconds();
+  return rep;
+}
+
+}  // namespace s2r
