@@ -105,6 +105,7 @@ void TraceStats::add(const TraceStats& o) {
   total_internal += o.total_internal;
   misses += o.misses;
   empty_tiles_pixels += o.empty_tiles_pixels;
+  glossy_lobes += o.glossy_lobes;
   for (size_t i = 0; i < rays_per_quantum.size(); ++i) rays_per_quantum[i] += o.rays_per_quantum[i];
 }
 
@@ -314,7 +315,7 @@ struct RayTracer::Impl {
     const Hit h = misses_bounds(o, d) ? Hit{} : intersect(top, o, d);
     if (!h.found) {
       ++st.misses;
-      return scene.background;
+      return scene.environment ? scene.environment->lookup(d.cast<double>()) : scene.background;
     }
     const RtObject& obj = scene.objects[h.object];
     const RtMesh& m = *meshes[mesh_of[h.object]];
@@ -358,8 +359,13 @@ struct RayTracer::Impl {
       if (rv > 0 && mat.shininess > 0) c += mat.specular * std::exp(mat.shininess * std::log(std::min(rv, 1.0f)));
       local += c.cwiseProduct(light.intensity);
     }
-    const float kr = mat.reflect, kt = mat.transmit;
-    Vector3f out = std::max(0.0f, 1 - kr - kt) * local;
+    const float kr = mat.reflect, kt = mat.transmit, kg = mat.glossy;
+    Vector3f out = std::max(0.0f, 1 - kr - kt - kg) * local;
+    if (kg > 0) {
+      ++st.glossy_lobes;
+      const Vector3f r = (d - 2 * d.dot(ns) * ns).normalized();
+      if (auto g = phong_lobe(*scene.environment, r.cast<double>(), mat.glossy_exponent)) out += kg * g->cast<float>();
+    }
     if (kr <= 0 && kt <= 0) return out;
     if (depth >= budget) {
       ++st.depth_cut;
@@ -398,8 +404,11 @@ Result<std::unique_ptr<RayTracer>> RayTracer::create(RtScene scene) {
   for (const auto& o : scene.objects) {
     if (auto st = o.mesh.validate("object '" + o.name + "'"); !st) return std::unexpected(st.error());
     const auto& m = o.material;
-    if (m.reflect < 0 || m.transmit < 0 || m.reflect + m.transmit > 1)
-      return fail("object '" + o.name + "': reflect and transmit must be >= 0 and sum to at most 1");
+    if (m.reflect < 0 || m.transmit < 0 || m.glossy < 0 || m.reflect + m.transmit + m.glossy > 1)
+      return fail("object '" + o.name + "': reflect, transmit and glossy must be >= 0 and sum to at most 1");
+    if (m.glossy > 0 && !scene.environment) return fail("object '" + o.name + "': a glossy material needs an environment");
+    if (!(m.glossy_exponent >= 0) || !std::isfinite(m.glossy_exponent))
+      return fail("object '" + o.name + "': glossy exponent must be finite and >= 0");
     if (!(m.ior > 0) || !std::isfinite(m.ior)) return fail("object '" + o.name + "': index of refraction must be positive");
     if (!(m.shininess >= 0) || !std::isfinite(m.shininess)) return fail("object '" + o.name + "': shininess must be >= 0");
     if (m.texture >= static_cast<int>(scene.textures.size()))

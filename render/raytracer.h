@@ -25,8 +25,10 @@
 //
 // Shading: local = ambient k_a kd + sum over unshadowed lights of
 // I (kd max(0, n.l) + ks max(0, r.v)^s), computed as exp(s log(r.v)). The
-// pixel is (1 - k_r - k_t) local + k_r R + k_t T; under total internal
-// reflection the k_t share goes to the reflected ray. Shadow rays treat every
+// pixel is (1 - k_r - k_t - k_g) local + k_r R + k_t T + k_g G, G the
+// environment's exact Phong lobe about the mirror direction (no occlusion
+// test on the lobe, as in seed 002); under total internal reflection the k_t
+// share goes to the reflected ray. Shadow rays treat every
 // object as opaque. Colours are linear; images are stored 8-bit, clamped.
 #pragma once
 
@@ -40,6 +42,7 @@
 
 #include "core/image.h"
 #include "core/result.h"
+#include "render/phong_reference.h"
 #include "render/visual_field.h"
 
 namespace s2r {
@@ -52,6 +55,8 @@ struct RtMaterial {
   float reflect = 0;                           // k_r
   float transmit = 0;                          // k_t
   float ior = 1.5f;                            // index of refraction inside
+  float glossy = 0;                            // k_g: weight of the environment's Phong lobe
+  float glossy_exponent = 100;                 // its exponent (any value >= 0; 1e6 is fine)
   int texture = -1;                            // RtScene::textures index (needs uvs)
 };
 
@@ -92,6 +97,10 @@ struct RtScene {
   std::vector<RtObject> objects;
   std::vector<PointLight> lights;
   Eigen::Vector3f background{0.05f, 0.06f, 0.08f};
+  // Optional: rays that leave the scene see it, and glossy materials reflect
+  // its exact Phong lobe (phong_reference.h; brute force per hit: this is the
+  // reference the environment map is measured against, not a fast path).
+  std::shared_ptr<const Panorama> environment;
   std::vector<ImageU8> textures;  // RGB, sRGB-free: read as linear 0..1
 };
 
@@ -130,6 +139,7 @@ struct TraceStats {
   size_t total_internal = 0; // refractions turned into reflections
   size_t misses = 0;         // rays that left the scene
   size_t empty_tiles_pixels = 0;  // pixels of tiles whose rays all pass beside the scene: not traced
+  size_t glossy_lobes = 0;   // exact environment lobes integrated
   double seconds = 0;
   std::array<size_t, 33> rays_per_quantum{};  // primary rays by level quantum (32 = full detail)
 

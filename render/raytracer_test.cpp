@@ -6,10 +6,13 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <functional>
+#include <memory>
 #include <random>
 
 #include "core/image_io.h"
 #include "core/mesh.h"
+#include "render/phong_reference.h"
 #include "render/raytrace_job.h"
 #include "render/raytracer.h"
 #include "render/visual_field.h"
@@ -390,6 +393,77 @@ TEST(RayTracer, SeedSceneWithTheStanfordBunny) {
   EXPECT_GE(central, 50.0);
   EXPECT_GT(ref.stats.secondary, 300u);  // the mirrors reflect
   EXPECT_LT(got.stats.secondary, ref.stats.secondary / 4);
+}
+
+Panorama panorama(int w, int h, const std::function<float(int, int)>& f) {
+  ImageF img(w, h, 1);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) img.at(x, y) = f(x, y);
+  auto p = Panorama::create(img);
+  EXPECT_TRUE(p.has_value());
+  return *p;
+}
+
+TEST(PhongReference, StableAtEveryExponentAndBoundedBySunAndSky) {
+  // A uniform sky gives its own value at any exponent, 0 to 1e9.
+  const Panorama flat = panorama(64, 32, [](int, int) { return 0.25f; });
+  for (double L : {0.0, 1.0, 1e3, 1e6, 1e9}) {
+    auto v = phong_lobe(flat, {0.3, 0.5, -0.8}, L);
+    ASSERT_TRUE(v.has_value());
+    EXPECT_NEAR(v->x(), 0.25, 1e-12) << L;
+  }
+  // L = 0: the hemisphere's mean; sky above (1), ground below (0).
+  const Panorama half = panorama(64, 32, [](int, int y) { return y < 16 ? 1.0f : 0.0f; });
+  EXPECT_NEAR(phong_lobe(half, {0, 1, 0}, 0)->x(), 1.0, 1e-12);
+  EXPECT_NEAR(phong_lobe(half, {0, 0, -1}, 0)->x(), 0.5, 1e-3);
+  // A sun 10^4 times the sky: the lobe climbs from the sky's level to the
+  // sun's as L grows, never leaves [sky, sun] (no ringing, nothing negative).
+  const Panorama sun = panorama(64, 32, [](int x, int y) { return x == 20 && y == 10 ? 1e4f : 1.0f; });
+  const Vector3d at_sun = sun.direction(20, 10);
+  double last = 0;
+  for (double L : {0.0, 10.0, 1e2, 1e3, 1e4, 1e5, 1e6, 1e8}) {
+    const double v = phong_lobe(sun, at_sun, L)->x();
+    EXPECT_GE(v, 1.0 - 1e-12);
+    EXPECT_LE(v, 1e4 + 1e-6);
+    EXPECT_GE(v, last - 1e-9) << L;
+    last = v;
+  }
+  EXPECT_NEAR(last, 1e4, 1.0);  // at L = 1e8 the lobe is the sun's pixel
+  // Off the sun by a hair at L = 1e6: still finite (log cos without cancellation).
+  auto off = phong_lobe(sun, at_sun + Vector3d(1e-7, 0, 0), 1e6);
+  ASSERT_TRUE(off.has_value());
+  EXPECT_TRUE(std::isfinite(off->x()));
+  // Bad input: a NaN pixel, a negative one, a zero direction, a negative exponent.
+  ImageF bad(8, 4, 3, 0.5f);
+  bad.at(3, 1, 1) = NAN;
+  auto nan_pano = Panorama::create(bad);
+  ASSERT_FALSE(nan_pano.has_value());
+  EXPECT_NE(nan_pano.error().message.find("(3, 1)"), std::string::npos) << nan_pano.error().message;
+  bad.at(3, 1, 1) = -1;
+  EXPECT_FALSE(Panorama::create(bad).has_value());
+  EXPECT_FALSE(phong_lobe(flat, {0, 0, 0}, 10).has_value());
+  EXPECT_FALSE(phong_lobe(flat, {0, 0, 1}, -1).has_value());
+  EXPECT_FALSE(phong_lobe(flat, {0, 0, 1}, INFINITY).has_value());
+}
+
+TEST(PhongReference, TheTracerReflectsTheExactLobe) {
+  RtMaterial gloss;
+  gloss.glossy = 1;  // all of the pixel from the lobe
+  gloss.glossy_exponent = 50;
+  RtScene s;
+  s.objects.push_back(sphere({0, 0, 0}, 1, gloss));
+  EXPECT_FALSE(RayTracer::create(s).has_value());  // glossy without an environment
+  s.environment = std::make_shared<Panorama>(panorama(64, 32, [](int, int y) { return y < 16 ? 0.8f : 0.2f; }));
+  auto rt = RayTracer::create(s);
+  ASSERT_TRUE(rt.has_value()) << rt.error().message;
+  TraceStats st;
+  // Straight down onto the top of the sphere: the mirror direction is up.
+  const Vector3f top = (*rt)->trace({0, 5, 0}, {0, -1, 0}, 1, 3, &st);
+  const Vector3d expect = *phong_lobe(*s.environment, {0, 1, 0}, 50);
+  EXPECT_NEAR(top.x(), expect.x(), 1e-3);  // the icosphere's facet tilts the normal slightly
+  EXPECT_EQ(st.glossy_lobes, 1u);
+  // A ray that leaves the scene sees the panorama.
+  EXPECT_NEAR((*rt)->trace({3, 0, 0}, {0, -1, 0}, 1, 3).x(), 0.2f, 1e-6);
 }
 
 }  // namespace

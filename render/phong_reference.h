@@ -1,0 +1,49 @@
+// The exact Phong lobe of an environment panorama (DESIGN.md sections 9 and
+// 12): the brute-force reference a multi-scale environment map is measured
+// against, and what the ray tracer returns for a glossy reflection.
+//
+//   I(r, L) = sum_w P(w) max(0, r.w)^L dOmega(w) / sum_w max(0, r.w)^L dOmega(w)
+//
+// over every pixel w of an equirectangular panorama, dOmega its solid angle.
+// The lobe is normalised: L = 0 gives the mean of the hemisphere around r, and
+// as L grows it tends to the panorama's value at r. Stable at any exponent:
+// (r.w)^L = exp(L log(r.w)) with log(r.w) = log1p(-|r - w|^2 / 2), free of
+// cancellation where r.w is near 1, and the weights are shifted by the largest
+// log-weight before exponentiating, so L = 1e9 does not turn into 0/0.
+//
+// Panorama convention: pixel (x, y) of a W x H image looks along
+//   longitude phi = 2 pi (x + 0.5) / W - pi,  latitude theta = pi/2 - pi (y + 0.5) / H,
+//   direction (cos theta sin phi, sin theta, -cos theta cos phi)
+// (y up; the image centre looks along -z); its solid angle is
+// cos(theta) (2 pi / W) (pi / H).
+#pragma once
+
+#include <Eigen/Core>
+
+#include "core/image.h"
+#include "core/result.h"
+
+namespace s2r {
+
+class Panorama {
+ public:
+  // Linear RGB (3 channels, or 1 read as grey), at least 4 x 2. Non-finite or
+  // negative pixels are rejected, naming the first one.
+  static Result<Panorama> create(ImageF rgb);
+
+  int width() const { return rgb_.width; }
+  int height() const { return rgb_.height; }
+  Eigen::Vector3d direction(int x, int y) const;
+  double solid_angle(int y) const;
+  Eigen::Vector3f at(int x, int y) const;
+  Eigen::Vector3f lookup(const Eigen::Vector3d& dir) const;  // nearest pixel
+
+ private:
+  ImageF rgb_;
+};
+
+// Brute force over every pixel; `r` any non-zero finite direction,
+// `exponent` >= 0 and finite.
+Result<Eigen::Vector3d> phong_lobe(const Panorama& panorama, const Eigen::Vector3d& r, double exponent);
+
+}  // namespace s2r
