@@ -534,9 +534,10 @@ TraceResult RayTracer::render(const Screen& screen, const Vector3d& eye, const T
           ++st.outside_field;
         } else {
           if (level >= 1) ++st.central;
-          if (empty)
+          if (empty) {
             ++st.empty_tiles_pixels;
-          else
+            if (impl_->scene.environment) c = impl_->scene.environment->lookup(dir.cast<double>());
+          } else
             c = impl_->trace_unit(eye_f, dir, level, options.reflect_max, st);
         }
         for (int ch = 0; ch < 3; ++ch) r.color.at(x, y, ch) = c[ch];

@@ -462,8 +462,12 @@ TEST(PhongReference, TheTracerReflectsTheExactLobe) {
   const Vector3d expect = *phong_lobe(*s.environment, {0, 1, 0}, 50);
   EXPECT_NEAR(top.x(), expect.x(), 1e-3);  // the icosphere's facet tilts the normal slightly
   EXPECT_EQ(st.glossy_lobes, 1u);
-  // A ray that leaves the scene sees the panorama.
+  // A ray that leaves the scene sees the panorama, also where a whole tile
+  // passes beside the scene and is not traced.
   EXPECT_NEAR((*rt)->trace({3, 0, 0}, {0, -1, 0}, 1, 3).x(), 0.2f, 1e-6);
+  const TraceResult img = (*rt)->render(Screen::pinhole({0, 0, 5}, {0, 1, 0}, {0, 0, 1}, 40, 32, 32), {0, 0, 5}, {});
+  EXPECT_EQ(img.stats.empty_tiles_pixels, 32u * 32u);
+  EXPECT_NEAR(img.color.at(16, 16, 0), 0.8f, 1e-6);  // looking up: the sky
 }
 
 }  // namespace
