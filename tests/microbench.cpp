@@ -3,6 +3,8 @@
 // Each pair has a peer in the same run: compare ratios, not absolute times.
 #include <benchmark/benchmark.h>
 
+#include <optional>
+
 #include "capture/synth_rig.h"
 #include "core/camera_model.h"
 #include "core/image_metrics.h"
@@ -33,19 +35,23 @@ BENCHMARK(BM_RigRender)->Args({320, 1})->Args({320, 2})->Unit(benchmark::kMillis
 // The seed's scene C (8 mirror bunnies on the front screen) rendered whole
 // with every object held at one mesh level (0 = N_max): what a coarser level
 // saves per ray. Peer: level 0 in the same run.
-void BM_RaytraceMeshLevel(benchmark::State& state) {
+// The seed's scene C with `levels` mesh levels per bunny; skips the benchmark on failure.
+std::optional<RtScene> scene_c(benchmark::State& state, int levels) {
   auto bunny = read_ply_mesh(data_dir() / "stanford_bunny" / "bun_zipper.ply");
-  if (!bunny) {
-    state.SkipWithError(bunny.error().message.c_str());
-    return;
-  }
   SeedSceneOptions so;
   so.scene = 'C';
-  auto scene = seed_scene(*bunny, so);
+  so.levels = levels;
+  auto scene = bunny ? seed_scene(*bunny, so) : Result<RtScene>(std::unexpected(bunny.error()));
   if (!scene) {
     state.SkipWithError(scene.error().message.c_str());
-    return;
+    return std::nullopt;
   }
+  return std::move(*scene);
+}
+
+void BM_RaytraceMeshLevel(benchmark::State& state) {
+  auto scene = scene_c(state, 6);
+  if (!scene) return;
   const int level = static_cast<int>(state.range(0));
   size_t triangles = 0;
   for (auto& o : scene->objects) {
@@ -63,15 +69,8 @@ BENCHMARK(BM_RaytraceMeshLevel)->DenseRange(0, 5)->Unit(benchmark::kMillisecond)
 // Scene C, gaze forward: the full render (0), visual-field LOD (1), and LOD
 // with one mesh level only (2: budgets and skipped pixels, no mesh switching).
 void BM_RaytraceFieldLod(benchmark::State& state) {
-  auto bunny = read_ply_mesh(data_dir() / "stanford_bunny" / "bun_zipper.ply");
-  if (!bunny) {
-    state.SkipWithError(bunny.error().message.c_str());
-    return;
-  }
-  SeedSceneOptions so;
-  so.scene = 'C';
-  so.levels = state.range(0) == 2 ? 1 : 6;
-  auto scene = seed_scene(*bunny, so);
+  auto scene = scene_c(state, state.range(0) == 2 ? 1 : 6);
+  if (!scene) return;
   auto rt = RayTracer::create(std::move(*scene));
   TraceOptions o;
   o.field_lod = state.range(0) > 0;
