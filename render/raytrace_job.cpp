@@ -10,6 +10,7 @@
 #include <spdlog/fmt/fmt.h>
 
 #include "core/image_io.h"
+#include "core/image_metrics.h"
 #include "core/parallel.h"
 #include "core/paths.h"
 #include "reconstruct/model.h"
@@ -223,23 +224,34 @@ LayoutRender render_layout(const RayTracer& tracer, const std::vector<Screen>& s
 }
 
 double psnr_where(const LayoutRender& test, const LayoutRender& ref, double lo, double hi) {
-  double se = 0;
-  size_t n = 0;
-  for (size_t w = 0; w < test.walls.size() && w < ref.walls.size(); ++w) {
-    const ImageU8 a = to_u8(test.walls[w].color), b = to_u8(ref.walls[w].color);
-    const ImageF& level = test.walls[w].level;
-    for (size_t p = 0; p < level.pixels(); ++p) {
-      if (level.data[p] < lo || level.data[p] > hi) continue;
-      for (int c = 0; c < 3; ++c) {
-        const double d = double(a.data[p * 3 + c]) - double(b.data[p * 3 + c]);
-        se += d * d;
-      }
-      n += 3;
-    }
+  // The walls stacked into one picture and one mask, so the error is pooled
+  // over every qualifying pixel; core's masked PSNR does the rest.
+  const size_t walls = std::min(test.walls.size(), ref.walls.size());
+  if (walls == 0) return std::numeric_limits<double>::quiet_NaN();
+  const int w = test.walls[0].color.width;
+  int h = 0;
+  for (size_t i = 0; i < walls; ++i) {
+    if (test.walls[i].color.width != w || !test.walls[i].color.same_shape(ref.walls[i].color))
+      return std::numeric_limits<double>::quiet_NaN();
+    h += test.walls[i].color.height;
   }
-  if (n == 0) return std::numeric_limits<double>::quiet_NaN();
-  if (se == 0) return std::numeric_limits<double>::infinity();
-  return 10 * std::log10(255.0 * 255.0 / (se / n));
+  ImageU8 a(w, h, 3), b(w, h, 3), mask(w, h, 1);
+  size_t used = 0, at = 0;
+  for (size_t i = 0; i < walls; ++i) {
+    const ImageU8 ta = to_u8(test.walls[i].color), tb = to_u8(ref.walls[i].color);
+    std::copy(ta.data.begin(), ta.data.end(), a.data.begin() + static_cast<std::ptrdiff_t>(at * 3));
+    std::copy(tb.data.begin(), tb.data.end(), b.data.begin() + static_cast<std::ptrdiff_t>(at * 3));
+    const ImageF& level = test.walls[i].level;
+    for (size_t p = 0; p < level.pixels(); ++p) {
+      const bool in = level.data[p] >= lo && level.data[p] <= hi;
+      mask.data[at + p] = in ? 255 : 0;
+      used += in;
+    }
+    at += level.pixels();
+  }
+  if (used == 0) return std::numeric_limits<double>::quiet_NaN();
+  auto p = psnr(a, b, &mask);
+  return p ? *p : std::numeric_limits<double>::quiet_NaN();
 }
 
 namespace {
