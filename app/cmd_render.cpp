@@ -1,7 +1,8 @@
-// Subcommands that draw: preview, render, eval, view, raytrace (envmap later).
+// Subcommands that draw: preview, render, eval, view, raytrace, envmap.
 #include <cmath>
 
 #include "app/commands.h"
+#include "render/envmap.h"
 #include "render/raytrace_job.h"
 #include "render/model_eval.h"
 #include "render/viewer.h"
@@ -260,6 +261,41 @@ void add_raytrace(CLI::App& app) {
   });
 }
 
+void add_envmap(CLI::App& app) {
+  auto* sub = app.add_subcommand(
+      "envmap",
+      "Multi-scale environment map: an equirectangular HDR panorama prefiltered for every roughness, one 3D texture "
+      "(direction = reflection vector, distance from the centre = smoothness lambda), checked against brute force");
+  auto job = std::make_shared<EnvmapJob>();
+  auto pano = std::make_shared<std::string>();
+  auto out = std::make_shared<std::string>();
+  auto report = std::make_shared<std::string>();
+  sub->add_option("panorama", *pano, "equirectangular panorama (Radiance .hdr, OpenEXR, ...), linear RGB")->required();
+  sub->add_option("--out", *out, "environment map to write (.exr: s x s*s, half RGB; a preview .png goes beside it)")->required();
+  sub->add_option("--size", job->options.size, "s: voxels per side")->capture_default_str();
+  sub->add_option("--levels", job->options.intensity_levels, "I: intensity levels the lobe must resolve (exponent at lambda 1 = g(1))")
+      ->capture_default_str();
+  sub->add_option("--threshold", job->options.threshold, "th: lobe weights below th times the peak are left out")->capture_default_str();
+  sub->add_option("--samples-per-scale", job->options.samples_per_scale,
+                  "pyramid pixels per lobe scale 1/sqrt(L): higher reads a finer panorama level")->capture_default_str();
+  sub->add_option("--check", job->check, "voxels compared with the brute-force Phong lobe (0: none)")->capture_default_str();
+  sub->add_option("--seed", job->seed, "which voxels are checked")->capture_default_str();
+  sub->add_flag("--clamp", job->clamp, "replace NaN/negative pixels by 0 and +Inf by the largest finite value (with a warning) "
+                "instead of refusing the panorama");
+  sub->add_option("--threads", job->options.threads, "worker threads (0 = all cores)")->capture_default_str();
+  sub->add_option("--report", *report, "report path (default: beside --out)");
+  sub->callback([=] {
+    set_runner([=] {
+      EnvmapJob j = *job;
+      j.panorama = *pano;
+      j.out = *out;
+      auto r = run_envmap_job(j);
+      if (!r) return error(r.error().message);
+      return finish(*r, report->empty() ? fs::path(*out).parent_path() / "report.json" : fs::path(*report));
+    });
+  });
+}
+
 }  // namespace
 
 void add_render_commands(CLI::App& app) {
@@ -268,6 +304,6 @@ void add_render_commands(CLI::App& app) {
   add_eval(app);
   add_view(app);
   add_raytrace(app);
-  add_not_yet(app, "envmap", "Multi-scale environment map");
+  add_envmap(app);
 }
 }  // namespace s2r::cli

@@ -17,7 +17,7 @@ namespace oiio = OIIO;
 namespace {
 
 template <class T>
-Result<Image<T>> read_as(const fs::path& path, oiio::TypeDesc type) {
+Result<Image<T>> read_as(const fs::path& path, oiio::TypeDesc type, ExrAttributes* attributes = nullptr) {
   std::error_code ec;
   if (!fs::exists(path, ec)) return fail("'" + path.string() + "': image file not found");
   auto in = oiio::ImageInput::open(path.string());
@@ -25,6 +25,10 @@ Result<Image<T>> read_as(const fs::path& path, oiio::TypeDesc type) {
   const oiio::ImageSpec& spec = in->spec();
   if (spec.width <= 0 || spec.height <= 0 || spec.nchannels <= 0)
     return fail("'" + path.string() + "': image has no pixels");
+  if (attributes)
+    for (const auto& a : spec.extra_attribs)
+      if (a.name().string().rfind("s2r:", 0) == 0 && a.type() == oiio::TypeDesc::STRING)
+        (*attributes)[a.name().string()] = a.get_string();
   Image<T> img(spec.width, spec.height, spec.nchannels);
   bool ok = in->read_image(0, 0, 0, spec.nchannels, type, img.data.data());
   std::string err = in->geterror();
@@ -88,6 +92,25 @@ Status write_image(const fs::path& path, const ImageU16& image, PngEffort effort
 }
 Status write_image(const fs::path& path, const ImageF& image) {
   return write_as(path, image, oiio::TypeDesc::FLOAT);
+}
+
+Status write_exr(const fs::path& path, const ImageF& image, const ExrAttributes& attributes, bool half) {
+  if (image.empty()) return fail("'" + path.string() + "': refusing to write an empty image");
+  return write_via_temp(path, [&](const fs::path& tmp) -> Status {
+    auto out = oiio::ImageOutput::create("exr");
+    if (!out) return fail("no OpenEXR writer: " + oiio::geterror());
+    oiio::ImageSpec spec(image.width, image.height, image.channels, half ? oiio::TypeDesc::HALF : oiio::TypeDesc::FLOAT);
+    spec.attribute("compression", "zip");
+    for (const auto& [name, value] : attributes) spec.attribute(name, value);
+    if (!out->open(tmp.string(), spec)) return fail(out->geterror());
+    if (!out->write_image(oiio::TypeDesc::FLOAT, image.data.data())) return fail(out->geterror());
+    if (!out->close()) return fail(out->geterror());
+    return {};
+  });
+}
+
+Result<ImageF> read_exr(const fs::path& path, ExrAttributes* attributes) {
+  return read_as<float>(path, oiio::TypeDesc::FLOAT, attributes);
 }
 
 Status write_rgbaz(const fs::path& path, const RgbazImage& image) {

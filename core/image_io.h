@@ -4,6 +4,7 @@
 #pragma once
 
 #include <filesystem>
+#include <map>
 #include <string>
 
 #include "core/image.h"
@@ -28,6 +29,13 @@ enum class PngEffort { kCompact, kFast };
 Status write_image(const std::filesystem::path& path, const ImageU8& image, PngEffort effort = PngEffort::kCompact);
 Status write_image(const std::filesystem::path& path, const ImageU16& image, PngEffort effort = PngEffort::kCompact);
 Status write_image(const std::filesystem::path& path, const ImageF& image);  // EXR
+
+// OpenEXR with the product's own metadata: `attributes` are stored as string
+// attributes (names like "s2r:size") and read back by read_exr; `half` stores
+// 16-bit floats (values beyond 65504 become infinite: the caller checks).
+using ExrAttributes = std::map<std::string, std::string>;
+Status write_exr(const std::filesystem::path& path, const ImageF& image, const ExrAttributes& attributes, bool half);
+Result<ImageF> read_exr(const std::filesystem::path& path, ExrAttributes* attributes);  // all "s2r:" attributes
 
 // Camera textures for the viewer (docs/formats.md, "Model"): one OpenEXR file
 // with half-float R, G, B, A (colour 0..1, A = 1 where the fused geometry is

@@ -25,6 +25,9 @@ Result<Panorama> Panorama::create(ImageF rgb) {
     }
   Panorama out;
   out.rgb_ = std::move(rgb);
+  out.dirs_.resize(out.rgb_.pixels());
+  for (int y = 0; y < out.rgb_.height; ++y)
+    for (int x = 0; x < out.rgb_.width; ++x) out.dirs_[static_cast<size_t>(y) * out.rgb_.width + x] = out.direction(x, y);
   return out;
 }
 
@@ -61,7 +64,7 @@ Result<Eigen::Vector3d> phong_lobe(const Panorama& pano, const Eigen::Vector3d& 
   for (int y = 0; y < H; ++y) {
     const double log_area = std::log(pano.solid_angle(y));
     for (int x = 0; x < W; ++x) {
-      const Eigen::Vector3d w = pano.direction(x, y);
+      const Eigen::Vector3d w = pano.unit(x, y);
       const double c = r.dot(w);
       if (c <= 0) continue;
       // log cos from the chord: exact where cos is near 1 (1 - cos would cancel).

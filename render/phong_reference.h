@@ -18,6 +18,8 @@
 // cos(theta) (2 pi / W) (pi / H).
 #pragma once
 
+#include <vector>
+
 #include <Eigen/Core>
 
 #include "core/image.h"
@@ -37,9 +39,13 @@ class Panorama {
   double solid_angle(int y) const;
   Eigen::Vector3f at(int x, int y) const;
   Eigen::Vector3f lookup(const Eigen::Vector3d& dir) const;  // nearest pixel
+  // Every pixel's unit direction, precomputed (x fastest).
+  const Eigen::Vector3d& unit(int x, int y) const { return dirs_[static_cast<size_t>(y) * rgb_.width + x]; }
+  const ImageF& rgb() const { return rgb_; }
 
  private:
   ImageF rgb_;
+  std::vector<Eigen::Vector3d> dirs_;
 };
 
 // Brute force over every pixel; `r` any non-zero finite direction,

@@ -34,10 +34,25 @@ TEST(Cli, HelpListsTheDesignSubcommands) {
     EXPECT_NE(r.out.find(sub), std::string::npos) << sub << "\n" << r.out;
 }
 
-TEST(Cli, LaterStagesSayNotYetAvailable) {
-  auto r = s2r("envmap pano.hdr --out x");
-  EXPECT_EQ(r.code, 2);
-  EXPECT_NE(r.out.find("not yet available"), std::string::npos) << r.out;
+TEST(Cli, EnvmapBuildsChecksAndNamesBadInput) {
+  const fs::path dir = fs::temp_directory_path() / ("s2r_cli_env_" + std::to_string(getpid()));
+  fs::remove_all(dir);
+  const std::string pano = std::string(S2R_DATA_DIR) + "/hdri/venice_sunset_1k.hdr";
+  auto r = s2r("-q envmap " + pano + " --size 16 --check 40 --out " + (dir / "env.exr").string());
+  ASSERT_EQ(r.code, 0) << r.out;
+  for (const char* f : {"env.exr", "env.png", "report.json"}) EXPECT_TRUE(fs::exists(dir / f)) << f;
+  std::ifstream report(dir / "report.json");
+  const std::string text((std::istreambuf_iterator<char>(report)), std::istreambuf_iterator<char>());
+  EXPECT_NE(text.find("mean_display_error"), std::string::npos) << text;
+  EXPECT_NE(text.find("voxels_outside_unit_ball"), std::string::npos) << text;
+  r = s2r("envmap " + (dir / "missing.hdr").string() + " --out " + (dir / "x.exr").string());
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.out.find("not found"), std::string::npos) << r.out;
+  r = s2r("envmap " + pano + " --size 1 --out " + (dir / "x.exr").string());
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.out.find("2..1024"), std::string::npos) << r.out;
+  EXPECT_FALSE(fs::exists(dir / "x.exr"));
+  fs::remove_all(dir);
 }
 
 TEST(Cli, SynthInspectPreviewWithReports) {
