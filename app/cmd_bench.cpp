@@ -21,6 +21,8 @@
 #include "reconstruct/reconstruct_job.h"
 #include "reconstruct/rig_eval.h"
 #include "render/model_eval.h"
+#include "render/envmap.h"
+#include "render/glossy_renderer.h"
 #include "render/raytrace_job.h"
 #include "core/atomic_file.h"
 
@@ -656,6 +658,146 @@ int bench_raytrace(const fs::path& out, int repeats, int size) {
   return finish(rep, out / "report.json");
 }
 
+
+// The seed's tables 3/4 as a sweep: weight threshold th and pyramid resolution
+// (samples per lobe scale) and map size vs error against the brute-force lobe
+// vs build seconds vs memory, on the panorama with a sun 10^4 times its sky;
+// then the default setting on every bundled panorama. The peer is the brute
+// force itself: its seconds per voxel, measured in the same run, times the
+// voxels of the map is what the unaccelerated build would take.
+int bench_envmap(const fs::path& out, int voxels) {
+  Stopwatch total;
+  Report rep;
+  rep.stage = "bench.envmap";
+  std::error_code ec;
+  fs::create_directories(out, ec);
+  const fs::path hdri = data_dir() / "hdri";
+  struct Config {
+    std::string panorama;
+    int size;
+    double threshold, samples_per_scale;
+    int check;
+    double levels = 256;
+  };
+  std::vector<Config> configs;
+  const int few = std::max(200, voxels / 10);
+  for (int size : {32, 64, 128, 256}) configs.push_back({"royal_esplanade_1k.hdr", size, 1e-3, 2, size == 128 ? voxels : few});
+  for (double th : {1e-2, 1e-3, 1e-4})
+    for (double r : {1.0, 2.0, 3.0})
+      if (!(th == 1e-3 && r == 2)) configs.push_back({"royal_esplanade_1k.hdr", 128, th, r, few});
+  // Fewer intensity levels: wider lobes per voxel spacing (smoother between
+  // voxels), a duller sharpest lobe g(1).
+  for (double levels : {16.0, 64.0}) configs.push_back({"royal_esplanade_1k.hdr", 128, 1e-3, 2, few, levels});
+  for (const char* p : {"venice_sunset_1k.hdr", "pedestrian_overpass_1k.hdr", "spruit_sunrise_1k.hdr", "blouberg_sunrise_2_1k.hdr"})
+    configs.push_back({p, 128, 1e-3, 2, few});
+  SweepTable t;
+  t.columns = {"build_s", "mean_display_error_x255", "max_display_error_x255", "mean_display_error_interpolated_x255",
+               "max_relative_error", "size", "threshold", "samples_per_scale", "intensity_levels", "exponent_at_lambda_1", "samples_per_voxel", "memory_mb", "file_mb",
+               "brute_force_build_s_estimate", "speedup_vs_brute_force", "checked_voxels"};
+  std::map<std::string, Panorama> panoramas;
+  for (const Config& c : configs) {
+    if (!panoramas.count(c.panorama)) {
+      std::vector<std::string> warnings;
+      auto p = load_panorama(hdri / c.panorama, false, &warnings);
+      if (!p) return error("bench envmap: " + p.error().message);
+      panoramas.emplace(c.panorama, std::move(*p));
+    }
+    const Panorama& pano = panoramas.at(c.panorama);
+    EnvmapOptions o;
+    o.size = c.size;
+    o.threshold = c.threshold;
+    o.samples_per_scale = c.samples_per_scale;
+    o.intensity_levels = c.levels;
+    EnvmapStats st;
+    auto map = build_envmap(pano, o, &st);
+    if (!map) return error(map.error().message);
+    const fs::path file = out / "envmap.exr";
+    if (auto w = map->save(file, c.panorama); !w) return error(w.error().message);
+    st.file_bytes = fs::file_size(file, ec);
+    fs::remove(file, ec);
+    auto acc = envmap_accuracy(*map, pano, c.check, 4, false, 1);
+    auto between = envmap_accuracy(*map, pano, std::max(200, c.check / 5), 4, true, 2);
+    if (!acc) return error(acc.error().message);
+    if (!between) return error(between.error().message);
+    // Brute force on every computed voxel, at the seconds per voxel measured here (all cores).
+    const double brute = acc->reference_seconds / std::max<size_t>(1, acc->all.count) * static_cast<double>(st.voxels);
+    const std::string label = fmt::format("{} s={} th={:g} R={:g} I={:g}", c.panorama.substr(0, c.panorama.find('_')),
+                                          c.size, c.threshold, c.samples_per_scale, c.levels);
+    t.row_labels.push_back(label);
+    t.rows.push_back({st.seconds, 255 * acc->all.mean_display, 255 * acc->all.max_display, 255 * between->all.mean_display,
+                      acc->all.max_relative, double(c.size), c.threshold, c.samples_per_scale, c.levels,
+                      envmap_exponent(1, c.size, c.levels),
+                      st.samples / std::max<size_t>(1, st.voxels), st.memory_bytes / 1e6, st.file_bytes / 1e6, brute,
+                      brute / st.seconds, double(acc->all.count)});
+    std::fprintf(stderr,
+                 "%-40s build %6.2f s, error mean %.4f max %.3f grey levels (between voxels %.4f), %.0f samples/voxel, "
+                 "%.0f MB, brute force ~%.0f s (%.0fx)\n",
+                 label.c_str(), st.seconds, 255 * acc->all.mean_display, 255 * acc->all.max_display,
+                 255 * between->all.mean_display, st.samples / std::max<size_t>(1, st.voxels), st.memory_bytes / 1e6, brute,
+                 brute / st.seconds);
+    if (c.size == 128 && c.threshold == 1e-3 && c.samples_per_scale == 2 && c.levels == 256) {
+      const std::string key = c.panorama.substr(0, c.panorama.find('_'));
+      rep.errors["mean_display_error_" + key] = acc->all.mean_display;
+      rep.errors["max_display_error_" + key] = acc->all.max_display;
+      rep.errors["mean_display_error_interpolated_" + key] = between->all.mean_display;
+      rep.counts["build_seconds_" + key] = st.seconds;
+      rep.counts["checked_voxels_" + key] = double(acc->all.count);
+      rep.counts["brute_force_build_seconds_estimate_" + key] = brute;
+      if (key == "royal")
+        for (const auto& b : acc->bands) {
+          const std::string band = fmt::format("lambda_{:.2f}_{:.2f}", b.lambda_lo, b.lambda_hi);
+          rep.errors["mean_display_error_royal_" + band] = b.mean_display;
+          rep.errors["max_display_error_royal_" + band] = b.max_display;
+        }
+      if (key == "royal")
+        for (const auto& b : between->bands)
+          rep.errors[fmt::format("mean_display_error_interpolated_royal_lambda_{:.2f}_{:.2f}", b.lambda_lo, b.lambda_hi)] =
+              b.mean_display;
+    }
+  }
+  // Rendering: a glossy sphere with per-pixel roughness, GL from the map
+  // against the ray tracer's exact lobe, on two panoramas.
+  for (const char* p : {"venice_sunset_1k.hdr", "royal_esplanade_1k.hdr"}) {
+    const std::string key = std::string(p).substr(0, std::string(p).find('_'));
+    auto pano = std::make_shared<const Panorama>(panoramas.at(p));
+    auto map = build_envmap(*pano, EnvmapOptions{});
+    if (!map) return error(map.error().message);
+    auto cmp = compare_glossy_sphere(pano, std::make_shared<const EnvironmentMap>(std::move(*map)), roughness_ramps(3), 160);
+    if (!cmp) return error(cmp.error().message);
+    rep.errors["glossy_sphere_mean_error_grey_levels_" + key] = cmp->mean_error;
+    rep.errors["glossy_sphere_max_error_grey_levels_" + key] = cmp->max_error;
+    rep.errors["glossy_sphere_grazing_mean_error_grey_levels_" + key] = cmp->grazing_mean_error;
+    rep.errors["glossy_sphere_grazing_max_error_grey_levels_" + key] = cmp->grazing_max_error;
+    rep.counts["glossy_sphere_pixels_" + key] = double(cmp->pixels);
+    rep.counts["glossy_sphere_grazing_pixels_" + key] = double(cmp->grazing_pixels);
+    rep.counts["glossy_sphere_gl_frame_ms_" + key] = cmp->gl_frame_ms;
+    rep.counts["glossy_sphere_ray_traced_seconds_" + key] = cmp->trace_seconds;
+    ImageU8 diff(cmp->gl.width, cmp->gl.height, 3);
+    for (size_t i = 0; i < diff.data.size(); ++i)
+      diff.data[i] = static_cast<uint8_t>(std::min(255, 8 * std::abs(int(cmp->gl.data[i]) - int(cmp->traced.data[i]))));
+    ImageU8 strip(cmp->gl.width * 3, cmp->gl.height, 3);
+    for (int y = 0; y < diff.height; ++y)
+      for (int x = 0; x < diff.width; ++x)
+        for (int c = 0; c < 3; ++c) {
+          strip.at(x, y, c) = cmp->gl.at(x, y, c);
+          strip.at(x + diff.width, y, c) = cmp->traced.at(x, y, c);
+          strip.at(x + 2 * diff.width, y, c) = diff.at(x, y, c);
+        }
+    if (auto w = write_image(out / ("glossy_sphere_" + key + ".png"), strip); !w) return error(w.error().message);
+    std::fprintf(stderr, "glossy sphere (%s, 160^2, roughness ramps per pixel): GL %.1f ms vs ray traced %.1f s; error mean %.2f "
+                 "max %.0f grey levels, grazing (%zu px) mean %.2f max %.0f\n", key.c_str(), cmp->gl_frame_ms, cmp->trace_seconds,
+                 cmp->mean_error, cmp->max_error, cmp->grazing_pixels, cmp->grazing_mean_error, cmp->grazing_max_error);
+  }
+  if (auto st = t.write_csv(out / "envmap.csv"); !st) return error(st.error().message);
+  PlotSpec spec{"Environment map: mean error against brute-force Phong vs build seconds (2 cores)", "build seconds",
+                "mean error (grey levels of 255)", "build_s", {"mean_display_error_x255"}, true, true, true};
+  if (auto st = plot_png(t, spec, out / "envmap.png"); !st) rep.warnings.push_back(st.error().message);
+  rep.params["checked_voxels_default"] = static_cast<double>(voxels);
+  rep.params["threads"] = static_cast<double>(worker_count(0));
+  rep.seconds = total.seconds();
+  return finish(rep, out / "report.json");
+}
+
 }  // namespace
 
 void add_bench_commands(CLI::App& app) {
@@ -669,13 +811,17 @@ void add_bench_commands(CLI::App& app) {
                   "reconstruct (surface error and build seconds vs facet size on the rig, against Open3D TSDF + marching cubes), "
                   "render (held-out PSNR vs 1280x720 frame ms per drawing setting, rig bunny and fuzzy, textured meshes in the same run), "
                   "raytrace (the seed's four CAVE scenes: visual-field LOD time vs the full render, gaze forward and down, PSNR inside "
-                  "the central field and over all pixels)")
+                  "the central field and over all pixels), envmap (environment map error against brute-force Phong vs build seconds "
+                  "and memory, per size, weight threshold and pyramid resolution; every bundled panorama)")
       ->required();
   sub->add_option("--out", *out, "output folder")->required();
   sub->add_option("--repeats", *repeats, "renders per point (median)")->capture_default_str();
   sub->add_option("--scene", *scene, "rig scene for the rig sweep")->capture_default_str();
   auto size = std::make_shared<int>(512);
   sub->add_option("--size", *size, "raytrace: pixels per CAVE screen side (the seed: 256; 512 steadies the timings)")->capture_default_str();
+  auto voxels = std::make_shared<int>(10000);
+  sub->add_option("--voxels", *voxels, "envmap: voxels checked against brute force at the default setting (a tenth elsewhere)")
+      ->capture_default_str();
   sub->callback([=] {
     set_runner([=] {
       if (*stage == "rig") return bench_rig(*out, std::max(1, *repeats), *scene);
@@ -685,7 +831,8 @@ void add_bench_commands(CLI::App& app) {
       if (*stage == "reconstruct") return bench_reconstruct(*out, *scene);
       if (*stage == "render") return bench_render(*out, *scene);
       if (*stage == "raytrace") return bench_raytrace(*out, std::max(7, *repeats), *size);
-      std::fprintf(stderr, "s2r bench %s: not yet available in this build (only 'rig', 'capture', 'calibrate', 'register', 'reconstruct', 'render' and 'raytrace')\n", stage->c_str());
+      if (*stage == "envmap") return bench_envmap(*out, std::max(100, *voxels));
+      std::fprintf(stderr, "s2r bench %s: not yet available in this build (only 'rig', 'capture', 'calibrate', 'register', 'reconstruct', 'render', 'raytrace' and 'envmap')\n", stage->c_str());
       return 2;
     });
   });

@@ -1,4 +1,5 @@
 #include "render/raytracer.h"
+#include "render/envmap.h"
 
 #include <algorithm>
 #include <cmath>
@@ -364,7 +365,10 @@ struct RayTracer::Impl {
     if (kg > 0) {
       ++st.glossy_lobes;
       const Vector3f r = (d - 2 * d.dot(ns) * ns).normalized();
-      if (auto g = phong_lobe(*scene.environment, r.cast<double>(), mat.glossy_exponent)) out += kg * g->cast<float>();
+      double exponent = mat.glossy_exponent;
+      if (mat.roughness_texture >= 0)
+        exponent = roughness_to_exponent(texel(mat.roughness_texture, w0 * m.uvs[f[0]] + h.u * m.uvs[f[1]] + h.v * m.uvs[f[2]]).x());
+      if (auto g = phong_lobe(*scene.environment, r.cast<double>(), exponent)) out += kg * g->cast<float>();
     }
     if (kr <= 0 && kt <= 0) return out;
     if (depth >= budget) {
@@ -414,6 +418,9 @@ Result<std::unique_ptr<RayTracer>> RayTracer::create(RtScene scene) {
     if (m.texture >= static_cast<int>(scene.textures.size()))
       return fail("object '" + o.name + "': texture index out of range");
     if (m.texture >= 0 && o.mesh.uvs.empty()) return fail("object '" + o.name + "': a texture needs uvs");
+    if (m.roughness_texture >= static_cast<int>(scene.textures.size()) || (m.roughness_texture >= 0 && o.mesh.uvs.empty()) ||
+        (m.roughness_texture >= 0 && scene.textures[m.roughness_texture].empty()))
+      return fail("object '" + o.name + "': the roughness texture must be a non-empty scene texture and the mesh needs uvs");
     if (m.texture >= 0 && scene.textures[m.texture].empty()) return fail("object '" + o.name + "': empty texture");
     if (!o.world_from_object.matrix().allFinite()) return fail("object '" + o.name + "': pose is not finite");
   }

@@ -58,6 +58,10 @@ struct RtMaterial {
   float glossy = 0;                            // k_g: weight of the environment's Phong lobe
   float glossy_exponent = 100;                 // its exponent (any value >= 0; 1e6 is fine)
   int texture = -1;                            // RtScene::textures index (needs uvs)
+  // Per-pixel roughness for the glossy lobe: RtScene::textures index, the first
+  // channel / 255 (bilinear, like `texture`); the exponent at each hit is then
+  // roughness_to_exponent(roughness) (render/envmap.h) instead of glossy_exponent.
+  int roughness_texture = -1;
 };
 
 // A triangle mesh with its levels of detail: index buffers into one vertex

@@ -1,0 +1,89 @@
+// OpenGL drawing of glossy materials from the multi-scale environment map
+// (DESIGN.md sections 9 and 13), for the same scene description the ray
+// tracer reads (RtScene), so the two can be compared pixel for pixel.
+//
+// Per fragment: the reflection r of the view ray about the shading normal,
+// the roughness from the material's roughness texture (bilinear, per pixel:
+// the seed could only set it per vertex) or its constant, the Phong exponent
+// L = roughness_to_exponent(roughness) and the map's radius for it, and one
+// trilinear read of the 3D texture at r lambda(L). Colour:
+//   (1 - k_g) k_d albedo E(n, lambda ~ 0) + k_g E(r, lambda(L))
+// where E is the map; the diffuse part reads the map's roughest shell about
+// the normal in place of the ray tracer's point lights (this renderer has no
+// lights). The seed's simplification is kept and stated: the lobe is not
+// tested for occlusion (the object does not reflect itself), as in the ray
+// tracer's glossy term. Pixels the objects do not cover show the panorama
+// (nearest pixel, as the ray tracer's misses) or the scene's background.
+//
+// Only when needed: without a glossy material no environment map is built,
+// uploaded or bound; DrawStats say so (`envmap_bound`).
+#pragma once
+
+#include <memory>
+
+#include "core/image.h"
+#include "core/result.h"
+#include "render/envmap.h"
+#include "render/framebuffer.h"
+#include "render/raytracer.h"
+
+namespace s2r {
+
+struct GlossyDrawStats {
+  double frame_ms = 0;
+  bool envmap_bound = false;
+  size_t envmap_texture_bytes = 0;
+  size_t triangles = 0;
+};
+
+class GlossyRenderer {
+ public:
+  // Needs a current OpenGL 4.3+ context. `envmap` is used only when some
+  // material is glossy (and then must be given).
+  static Result<std::unique_ptr<GlossyRenderer>> create(const RtScene& scene, std::shared_ptr<const EnvironmentMap> envmap);
+  ~GlossyRenderer();
+  GlossyRenderer(const GlossyRenderer&) = delete;
+  GlossyRenderer& operator=(const GlossyRenderer&) = delete;
+
+  // The screen seen from `eye` (the ray tracer's Screen: any off-axis
+  // rectangle), into `target` of the screen's size.
+  Result<GlossyDrawStats> draw(const Eigen::Vector3d& eye, const Screen& screen, const Framebuffer& target);
+  bool needs_envmap() const { return needs_envmap_; }
+
+ private:
+  GlossyRenderer() = default;
+  struct Gpu;
+  std::unique_ptr<Gpu> gpu_;
+  bool needs_envmap_ = false;
+  size_t envmap_bytes_ = 0, triangles_ = 0;
+};
+
+// True when some object's material has a glossy weight above 0.
+bool scene_is_glossy(const RtScene& scene);
+
+}  // namespace s2r
+
+namespace s2r {
+
+// The check: a unit glossy sphere (k_g = 1, no diffuse, no lights)
+// whose roughness comes per pixel from `roughness` (first channel / 255, mapped
+// by latitude: v from the south pole 0 to the north pole 1), in front of the
+// panorama, drawn `size` x `size` by the GL renderer from `map` and by the ray
+// tracer with the exact lobe. Errors are |GL - traced| in grey levels (of 255)
+// per channel over the sphere's pixels, and over its grazing pixels (view
+// angle above 75 degrees).
+struct GlossyComparison {
+  ImageU8 gl, traced;
+  double mean_error = 0, max_error = 0, grazing_mean_error = 0, grazing_max_error = 0;
+  size_t pixels = 0, grazing_pixels = 0;
+  double gl_frame_ms = 0, trace_seconds = 0;
+  size_t envmap_texture_bytes = 0;
+};
+// Roughness ramping 0 -> 1 `bands` times from the south pole to the north:
+// smooth stretches and per-pixel jumps (the seed's per-vertex roughness
+// distorted where it changed quickly).
+ImageU8 roughness_ramps(int bands);
+Result<GlossyComparison> compare_glossy_sphere(std::shared_ptr<const Panorama> panorama, std::shared_ptr<const EnvironmentMap> map,
+                                               const ImageU8& roughness, int size, int threads = 0);
+
+}  // namespace s2r
