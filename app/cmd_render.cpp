@@ -71,6 +71,62 @@ DrawOptions draw_options(const DrawArgs& a) {
   return d;
 }
 
+// Backdrop, glossy floor and props around a model (render, view).
+struct EnvArgs {
+  std::string panorama, envmap, floor_map, up = "z";
+  double floor = -1, floor_glossy = 0.5;
+  std::vector<std::string> spheres;
+  int envmap_size = 128;
+  bool clamp = false;
+};
+
+void add_environment_options(CLI::App* sub, EnvArgs& a) {
+  sub->add_option("--panorama", a.panorama, "equirectangular HDR drawn as the backdrop and reflected by glossy things");
+  sub->add_option("--envmap", a.envmap, "a prebuilt environment map (s2r envmap); default: built from --panorama, only when "
+                  "something is glossy");
+  sub->add_option("--floor", a.floor, "a glossy floor under the object with this roughness (0 mirror .. 1 rough)")
+      ->check(CLI::Range(0.0, 1.0));
+  sub->add_option("--floor-roughness-map", a.floor_map, "per-pixel floor roughness from this image's first channel (4 tiles per side)");
+  sub->add_option("--floor-glossy", a.floor_glossy, "k_g of the floor: its share of glossy reflection (0: matte, no map)")
+      ->check(CLI::Range(0.0, 1.0))->capture_default_str();
+  sub->add_option("--sphere", a.spheres, "a glossy sphere prop X,Y,Z,RADIUS,ROUGHNESS in world metres (repeatable)");
+  sub->add_option("--up", a.up, "the world's up: z (the table frame), y, or X,Y,Z")->capture_default_str();
+  sub->add_option("--envmap-size", a.envmap_size, "voxels per side of a map built here")->capture_default_str();
+  sub->add_flag("--clamp-panorama", a.clamp, "clamp NaN/Inf/negative panorama pixels with a warning instead of refusing it");
+}
+
+std::optional<std::vector<double>> numbers(const std::string& text, size_t count);
+
+// Empty optional: no environment asked for. An error message in `why`.
+std::optional<EnvironmentSetup> environment_setup(const EnvArgs& a, std::string* why) {
+  if (a.panorama.empty() && a.envmap.empty() && a.floor < 0 && a.spheres.empty()) return std::nullopt;
+  EnvironmentSetup e;
+  e.panorama = a.panorama;
+  e.envmap = a.envmap;
+  e.clamp = a.clamp;
+  e.floor_roughness = a.floor;
+  e.floor_roughness_texture = a.floor_map;
+  e.floor_glossy = static_cast<float>(a.floor_glossy);
+  e.envmap_options.size = a.envmap_size;
+  if (!a.floor_map.empty() && a.floor < 0) e.floor_roughness = 0.5;
+  if (a.up == "z") e.up = Eigen::Vector3d::UnitZ();
+  else if (a.up == "y") e.up = Eigen::Vector3d::UnitY();
+  else if (auto v = numbers(a.up, 3); v && Eigen::Vector3d((*v)[0], (*v)[1], (*v)[2]).norm() > 0) e.up = {(*v)[0], (*v)[1], (*v)[2]};
+  else {
+    *why = "--up: expected z, y or X,Y,Z (non-zero), got '" + a.up + "'";
+    return std::nullopt;
+  }
+  for (const auto& sp : a.spheres) {
+    auto v = numbers(sp, 5);
+    if (!v || (*v)[3] <= 0 || (*v)[4] < 0 || (*v)[4] > 1) {
+      *why = "--sphere: expected X,Y,Z,RADIUS,ROUGHNESS with RADIUS > 0 and ROUGHNESS in [0, 1], got '" + sp + "'";
+      return std::nullopt;
+    }
+    e.props.push_back({{(*v)[0], (*v)[1], (*v)[2]}, (*v)[3], (*v)[4]});
+  }
+  return e;
+}
+
 void add_source_options(CLI::App* sub, FrameSource& s) {
   sub->add_option("--session", s.session, "the session (for frames the model does not hold, and for eval's photos)");
   sub->add_option("--poses", s.poses, "registered poses (s2r register), as given to reconstruct");
@@ -87,10 +143,12 @@ void add_render(CLI::App& app) {
     double scale = 1;
     DrawArgs draw;
     FrameSource source;
+    EnvArgs env;
   };
   auto a = std::make_shared<Args>();
   sub->add_option("model", a->model, "model folder (s2r reconstruct)")->required();
   sub->add_option("--out", a->out, "PNG to write")->required();
+  add_environment_options(sub, a->env);
   sub->add_option("--view", a->view, "session frame whose camera draws the image (0-based)");
   sub->add_option("--pose", a->pose, "view file: {format s2r.view, intrinsics, world_from_camera}");
   sub->add_option("--scale", a->scale, "image size relative to the camera's")->capture_default_str();
@@ -108,6 +166,9 @@ void add_render(CLI::App& app) {
       job.source = a->source;
       job.draw = draw_options(a->draw);
       job.scale = a->scale;
+      std::string why;
+      job.environment = environment_setup(a->env, &why);
+      if (!why.empty()) return error(why);
       auto r = run_render_job(job);
       if (!r) return error(r.error().message);
       return finish(*r, a->report.empty() ? fs::path(a->out).parent_path() / "report.json" : fs::path(a->report));
@@ -159,6 +220,7 @@ void add_view(CLI::App& app) {
     std::string model, screenshot, pose;
     int width = 1280, height = 720, frames = 0;
     DrawArgs draw;
+    EnvArgs env;
   };
   auto a = std::make_shared<Args>();
   sub->add_option("model", a->model, "model folder (s2r reconstruct)")->required();
@@ -168,6 +230,7 @@ void add_view(CLI::App& app) {
   sub->add_option("--frames", a->frames, "draw this many frames and quit (0 = until closed); for tests and timing");
   sub->add_option("--screenshot", a->screenshot, "PNG written after the last frame");
   add_draw_options(sub, a->draw);
+  add_environment_options(sub, a->env);
   sub->callback([a] {
     set_runner([a] {
       ViewerOptions o;
@@ -178,6 +241,9 @@ void add_view(CLI::App& app) {
       o.screenshot = a->screenshot;
       o.start_view = a->pose;
       o.draw = draw_options(a->draw);
+      std::string why;
+      o.environment = environment_setup(a->env, &why);
+      if (!why.empty()) return error(why);
       auto r = run_viewer(o);
       if (!r) return error(r.error().message);
       std::fprintf(stderr, "%s\n", r->brief().c_str());
@@ -186,16 +252,12 @@ void add_view(CLI::App& app) {
   });
 }
 
-// "x,y,z" -> a finite vector; named directions for --gaze.
-std::optional<Eigen::Vector3d> vector3(const std::string& s) {
-  if (s == "forward") return Eigen::Vector3d(0, 0, -1);
-  if (s == "down") return Eigen::Vector3d(0, -1, 0);
-  if (s == "right") return Eigen::Vector3d(1, 0, 0);
-  if (s == "up") return Eigen::Vector3d(0, 1, 0);
-  const auto items = comma_items(s);
-  if (items.size() != 3) return std::nullopt;
-  Eigen::Vector3d v;
-  for (int i = 0; i < 3; ++i) {
+// "a,b,c,..." -> exactly `count` finite numbers.
+std::optional<std::vector<double>> numbers(const std::string& text, size_t count) {
+  const auto items = comma_items(text);
+  if (items.size() != count) return std::nullopt;
+  std::vector<double> v(count);
+  for (size_t i = 0; i < count; ++i) {
     size_t used = 0;
     try {
       v[i] = std::stod(items[i], &used);
@@ -205,6 +267,17 @@ std::optional<Eigen::Vector3d> vector3(const std::string& s) {
     if (used != items[i].size() || !std::isfinite(v[i])) return std::nullopt;
   }
   return v;
+}
+
+// "x,y,z" -> a finite vector; named directions for --gaze.
+std::optional<Eigen::Vector3d> vector3(const std::string& s) {
+  if (s == "forward") return Eigen::Vector3d(0, 0, -1);
+  if (s == "down") return Eigen::Vector3d(0, -1, 0);
+  if (s == "right") return Eigen::Vector3d(1, 0, 0);
+  if (s == "up") return Eigen::Vector3d(0, 1, 0);
+  const auto v = numbers(s, 3);
+  if (!v) return std::nullopt;
+  return Eigen::Vector3d((*v)[0], (*v)[1], (*v)[2]);
 }
 
 void add_raytrace(CLI::App& app) {

@@ -5,9 +5,12 @@
 #include <chrono>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include <spdlog/fmt/fmt.h>
 
+#include "core/image_io.h"
+#include "core/report.h"
 #include "render/gl_context.h"
 #include "render/gl_program.h"
 #include "render/raytrace_job.h"
@@ -48,6 +51,7 @@ uniform float level_ratio;    // log(I) / log(256)
 uniform float kd, kg;
 uniform vec3 albedo;
 uniform vec3 ambient_colour;  // diffuse light without a map
+uniform mat3 env_from_world;
 // log1p and expm1 without the cancellation of log(1 + y), exp(y) - 1 at small y.
 float log1p_(float y) { return y < 1e-3 ? y * (1.0 - 0.5 * y) : log(1.0 + y); }
 float expm1_(float y) { return y < 1e-3 ? y * (1.0 + 0.5 * y) : exp(y) - 1.0; }
@@ -61,7 +65,7 @@ float lambda_for(float rho) {
   float xs2 = expm1_(level_ratio * log1p_(x * x));
   return min(1.0, 2.0 / (env_size * sqrt(xs2)));
 }
-vec3 env(vec3 t) { return texture(envmap, t * 0.5 + 0.5).rgb; }
+vec3 env(vec3 t) { return texture(envmap, (env_from_world * t) * 0.5 + 0.5).rgb; }
 void main() {
   vec3 v = normalize(wpos - eye);
   vec3 ng = normalize(cross(dFdx(wpos), dFdy(wpos)));
@@ -96,10 +100,11 @@ uniform vec2 size;
 uniform sampler2D panorama;
 uniform int has_panorama;
 uniform vec3 background;
+uniform mat3 env_from_world;
 const float PI = 3.14159265358979;
 void main() {
   vec2 px = vec2(gl_FragCoord.x, size.y - gl_FragCoord.y);  // (x + 0.5, y + 0.5), rows top first
-  vec3 d = normalize(corner + px.x / size.x * right_v + px.y / size.y * down_v - eye);
+  vec3 d = normalize(env_from_world * (corner + px.x / size.x * right_v + px.y / size.y * down_v - eye));
   vec3 c = background;
   if (has_panorama != 0) {
     ivec2 wh = textureSize(panorama, 0);
@@ -224,6 +229,7 @@ Result<std::unique_ptr<GlossyRenderer>> GlossyRenderer::create(const RtScene& sc
       const Eigen::Vector3f n = m.normals.empty() ? Eigen::Vector3f::Zero() : Eigen::Vector3f(nm * m.normals[i]);
       const Eigen::Vector2f t = m.uvs.empty() ? Eigen::Vector2f::Zero() : m.uvs[i];
       vb.insert(vb.end(), {p.x(), p.y(), p.z(), n.x(), n.y(), n.z(), t.x(), t.y()});
+      r->bounds_.extend(p.cast<double>());
     }
     const auto& tris = m.levels.front();
     glGenVertexArrays(1, &it.vao);
@@ -248,15 +254,42 @@ Result<std::unique_ptr<GlossyRenderer>> GlossyRenderer::create(const RtScene& sc
 }
 
 Result<GlossyDrawStats> GlossyRenderer::draw(const Eigen::Vector3d& eye, const Screen& screen, const Framebuffer& target) {
-  if (auto v = screen.validate(); !v) return std::unexpected(v.error());
   if (screen.width != target.width() || screen.height != target.height())
     return fail(fmt::format("screen is {}x{} but the target is {}x{}", screen.width, screen.height, target.width(), target.height()));
+  const auto start = std::chrono::steady_clock::now();
+  target.bind();
+  target.clear(gpu_->background.x(), gpu_->background.y(), gpu_->background.z());
+  double far_m = 1000;
+  if (!bounds_.isEmpty())
+    for (int c = 0; c < 8; ++c) far_m = std::max(far_m, 2 * (bounds_.corner(Eigen::AlignedBox3d::CornerType(c)) - eye).norm());
+  auto st = draw_into_bound(eye, screen, 0, far_m);
+  if (!st) return st;
+  glFinish();
+  st->frame_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  return st;
+}
+
+Screen screen_for_view(const Intrinsics& K, const Eigen::Isometry3d& world_from_camera) {
+  const Eigen::Matrix3d R = world_from_camera.linear();
+  Screen s;
+  s.name = "view";
+  s.width = K.width;
+  s.height = K.height;
+  s.corner = world_from_camera.translation() + R * Eigen::Vector3d((-0.5 - K.cx) / K.fx, (-0.5 - K.cy) / K.fy, 1);
+  s.right = R * Eigen::Vector3d(K.width / K.fx, 0, 0);
+  s.down = R * Eigen::Vector3d(0, K.height / K.fy, 0);
+  return s;
+}
+
+Result<GlossyDrawStats> GlossyRenderer::draw_into_bound(const Eigen::Vector3d& eye, const Screen& screen, double near_req, double far_m) {
+  if (auto v = screen.validate(); !v) return std::unexpected(v.error());
   // Off-axis frustum through the screen rectangle (right and down orthogonal).
   const Eigen::Vector3d xh = screen.right.normalized(), yh = -screen.down.normalized(), zh = xh.cross(yh);
   const Eigen::Vector3d rel = screen.corner - eye;
   const double dist = -rel.dot(zh);
   if (!(dist > 0)) return fail("the eye is on or behind the screen's plane");
-  const double near_m = std::min(0.01, 0.5 * dist), far_m = 1000;
+  const double near_m = near_req > 0 ? near_req : std::min(0.01, 0.5 * dist);
+  if (!(far_m > near_m)) return fail("the far plane must lie beyond the near plane");
   const double l = rel.dot(xh), r = l + screen.right.norm(), t = rel.dot(yh), b = t - screen.down.norm();
   Eigen::Matrix4d proj = Eigen::Matrix4d::Zero();
   const double k = near_m / dist;
@@ -277,8 +310,7 @@ Result<GlossyDrawStats> GlossyRenderer::draw(const Eigen::Vector3d& eye, const S
 
   Gpu& g = *gpu_;
   const auto start = std::chrono::steady_clock::now();
-  target.bind();
-  target.clear(g.background.x(), g.background.y(), g.background.z());
+  const Eigen::Matrix3f env_rot = env_from_world_.cast<float>();
   glDisable(GL_DEPTH_TEST);
   glUseProgram(g.backdrop.id());
   const Eigen::Vector3f e = eye.cast<float>(), c = screen.corner.cast<float>(), rv = screen.right.cast<float>(),
@@ -290,6 +322,7 @@ Result<GlossyDrawStats> GlossyRenderer::draw(const Eigen::Vector3d& eye, const S
   glUniform2f(g.backdrop.uniform("size"), static_cast<float>(screen.width), static_cast<float>(screen.height));
   glUniform3fv(g.backdrop.uniform("background"), 1, g.background.data());
   glUniform1i(g.backdrop.uniform("has_panorama"), g.panorama ? 1 : 0);
+  glUniformMatrix3fv(g.backdrop.uniform("env_from_world"), 1, GL_FALSE, env_rot.data());
   glActiveTexture(GL_TEXTURE0);
   glBindTexture(GL_TEXTURE_2D, g.panorama);
   glUniform1i(g.backdrop.uniform("panorama"), 0);
@@ -300,10 +333,12 @@ Result<GlossyDrawStats> GlossyRenderer::draw(const Eigen::Vector3d& eye, const S
   glDeleteVertexArrays(1, &empty_vao);
 
   glEnable(GL_DEPTH_TEST);
+  glDepthFunc(GL_LESS);
   glUseProgram(g.mesh.id());
   glUniformMatrix4fv(g.mesh.uniform("view_proj"), 1, GL_FALSE, vp.data());
   glUniform3fv(g.mesh.uniform("eye"), 1, e.data());
   glUniform1i(g.mesh.uniform("has_envmap"), g.envmap ? 1 : 0);
+  glUniformMatrix3fv(g.mesh.uniform("env_from_world"), 1, GL_FALSE, env_rot.data());
   const float s = g.map ? static_cast<float>(g.map->size()) : 1.f;
   glUniform1f(g.mesh.uniform("env_size"), s);
   glUniform1f(g.mesh.uniform("level_ratio"), g.map ? static_cast<float>(std::log(g.map->intensity_levels()) / std::log(256.0)) : 1.f);
@@ -329,7 +364,7 @@ Result<GlossyDrawStats> GlossyRenderer::draw(const Eigen::Vector3d& eye, const S
     glDrawElements(GL_TRIANGLES, it.indices, GL_UNSIGNED_INT, nullptr);
   }
   glBindVertexArray(0);
-  glFinish();
+  glActiveTexture(GL_TEXTURE0);
   GlossyDrawStats st;
   st.frame_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
   st.envmap_bound = g.envmap != 0;
@@ -427,6 +462,123 @@ Result<GlossyComparison> compare_glossy_sphere(std::shared_ptr<const Panorama> p
     }
   out.mean_error = out.pixels ? sum / (3.0 * out.pixels) : 0;
   out.grazing_mean_error = out.grazing_pixels ? grazing_sum / (3.0 * out.grazing_pixels) : 0;
+  return out;
+}
+
+}  // namespace s2r
+
+namespace s2r {
+
+Eigen::Matrix3d environment_from_world(const Eigen::Vector3d& up_in) {
+  const Eigen::Vector3d up = up_in.normalized();
+  Eigen::Vector3d a = Eigen::Vector3d::UnitX() - up.x() * up;
+  if (a.norm() < 0.1) a = Eigen::Vector3d::UnitY() - up.y() * up;
+  a.normalize();
+  Eigen::Matrix3d R;
+  R.row(0) = a.transpose();
+  R.row(1) = up.transpose();
+  R.row(2) = a.cross(up).transpose();
+  return R;
+}
+
+void report_environment(const PreparedEnvironment& env, Report& rep) {
+  rep.params["environment_map"] = env.envmap_source;
+  if (env.map) {
+    rep.counts["envmap_seconds"] = env.envmap_seconds;
+    rep.counts["envmap_size"] = double(env.map->size());
+  } else {
+    rep.skipped["environment_map_not_needed_no_glossy_material"] = 1;
+  }
+  for (const auto& w : env.warnings) rep.warnings.push_back(w);
+}
+
+Result<PreparedEnvironment> prepare_environment(const EnvironmentSetup& setup, const Eigen::AlignedBox3d& bounds) {
+  if (!setup.up.allFinite() || setup.up.norm() == 0) return fail("--up must be a finite non-zero direction");
+  if (bounds.isEmpty()) return fail("the model has no extent to put a floor under");
+  PreparedEnvironment out;
+  RtScene scene;
+  if (!setup.panorama.empty()) {
+    auto pano = load_panorama(setup.panorama, setup.clamp, &out.warnings);
+    if (!pano) return std::unexpected(pano.error());
+    scene.environment = std::make_shared<const Panorama>(std::move(*pano));
+  }
+  const Eigen::Vector3d up = setup.up.normalized();
+  const Eigen::Vector3d centre = bounds.center();
+  const double radius = 0.5 * bounds.diagonal().norm();
+  double lowest = std::numeric_limits<double>::infinity();
+  for (int c = 0; c < 8; ++c) lowest = std::min(lowest, up.dot(bounds.corner(Eigen::AlignedBox3d::CornerType(c))));
+  if (setup.floor_roughness >= 0) {
+    if (setup.floor_roughness > 1) return fail("floor roughness must be in [0, 1]");
+    RtObject floor;
+    floor.name = "floor";
+    const Eigen::Matrix3d R = environment_from_world(up);
+    const Eigen::Vector3d a = R.row(0).transpose(), b = R.row(2).transpose();
+    const Eigen::Vector3d o = centre + (lowest - up.dot(centre)) * up;
+    const double h = 3 * radius;
+    const int n = 16;  // a grid, so per-vertex interpolation is not all the floor has
+    for (int j = 0; j <= n; ++j)
+      for (int i = 0; i <= n; ++i) {
+        const double u = static_cast<double>(i) / n, v = static_cast<double>(j) / n;
+        floor.mesh.vertices.push_back((o + (2 * u - 1) * h * a + (2 * v - 1) * h * b).cast<float>());
+        floor.mesh.normals.push_back(up.cast<float>());
+        floor.mesh.uvs.emplace_back(static_cast<float>(4 * u), static_cast<float>(4 * v));
+      }
+    std::vector<Eigen::Vector3i> tris;
+    for (int j = 0; j < n; ++j)
+      for (int i = 0; i < n; ++i) {
+        const int k = j * (n + 1) + i;
+        tris.emplace_back(k, k + 1, k + n + 2);
+        tris.emplace_back(k, k + n + 2, k + n + 1);
+      }
+    floor.mesh.levels = {tris};
+    floor.material.diffuse = setup.floor_colour;
+    floor.material.glossy = setup.floor_glossy;
+    floor.material.glossy_exponent = static_cast<float>(roughness_to_exponent(setup.floor_roughness));
+    if (!setup.floor_roughness_texture.empty()) {
+      auto tex = read_image_u8(setup.floor_roughness_texture);
+      if (!tex) return std::unexpected(with_context(tex.error(), "floor roughness texture"));
+      scene.textures.push_back(std::move(*tex));
+      floor.material.roughness_texture = static_cast<int>(scene.textures.size()) - 1;
+    }
+    scene.objects.push_back(std::move(floor));
+  }
+  const Mesh ball = icosphere(4);
+  for (size_t i = 0; i < setup.props.size(); ++i) {
+    const auto& p = setup.props[i];
+    if (!p.centre.allFinite() || !(p.radius > 0) || !(p.roughness >= 0 && p.roughness <= 1))
+      return fail(fmt::format("prop {}: needs a finite centre, a radius > 0 and a roughness in [0, 1]", i));
+    RtObject s;
+    s.name = fmt::format("sphere {}", i);
+    for (const auto& v : ball.vertices) s.mesh.vertices.push_back((p.centre + p.radius * v.cast<double>()).cast<float>());
+    s.mesh.normals = ball.normals;
+    s.mesh.levels = {ball.faces};
+    s.material.diffuse = {0.8f, 0.8f, 0.8f};
+    s.material.glossy = 1;
+    s.material.glossy_exponent = static_cast<float>(roughness_to_exponent(p.roughness));
+    scene.objects.push_back(std::move(s));
+  }
+  std::shared_ptr<const EnvironmentMap> map;
+  Stopwatch clock;
+  if (!scene_is_glossy(scene)) {
+    out.envmap_source = "not needed";
+  } else if (!setup.envmap.empty()) {
+    auto m = EnvironmentMap::load(setup.envmap);
+    if (!m) return std::unexpected(m.error());
+    map = std::make_shared<const EnvironmentMap>(std::move(*m));
+    out.envmap_source = "loaded";
+  } else {
+    if (!scene.environment) return fail("a glossy floor or prop needs --panorama (or a prebuilt --envmap)");
+    auto m = build_envmap(*scene.environment, setup.envmap_options);
+    if (!m) return std::unexpected(m.error());
+    map = std::make_shared<const EnvironmentMap>(std::move(*m));
+    out.envmap_source = "built";
+  }
+  out.envmap_seconds = clock.seconds();
+  auto r = GlossyRenderer::create(scene, map);
+  if (!r) return std::unexpected(r.error());
+  (*r)->set_environment_from_world(environment_from_world(up));
+  out.renderer = std::move(*r);
+  out.map = map;
   return out;
 }
 

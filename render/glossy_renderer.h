@@ -19,9 +19,16 @@
 // uploaded or bound; DrawStats say so (`envmap_bound`).
 #pragma once
 
+#include <filesystem>
 #include <memory>
+#include <string>
+#include <vector>
 
+#include <Eigen/Geometry>
+
+#include "core/camera_model.h"
 #include "core/image.h"
+#include "core/report.h"
 #include "core/result.h"
 #include "render/envmap.h"
 #include "render/framebuffer.h"
@@ -46,9 +53,17 @@ class GlossyRenderer {
   GlossyRenderer& operator=(const GlossyRenderer&) = delete;
 
   // The screen seen from `eye` (the ray tracer's Screen: any off-axis
-  // rectangle), into `target` of the screen's size.
+  // rectangle), into `target` of the screen's size, cleared first.
   Result<GlossyDrawStats> draw(const Eigen::Vector3d& eye, const Screen& screen, const Framebuffer& target);
+  // Into the bound, already cleared target (another renderer's pass shares
+  // its depth buffer): depth written with the same near/far mapping as the
+  // model renderer's, so the objects and the model occlude each other.
+  Result<GlossyDrawStats> draw_into_bound(const Eigen::Vector3d& eye, const Screen& screen, double near_m, double far_m);
   bool needs_envmap() const { return needs_envmap_; }
+  // World directions -> panorama directions (the panorama is y up; a table
+  // frame is z up). Identity by default.
+  void set_environment_from_world(const Eigen::Matrix3d& rotation) { env_from_world_ = rotation; }
+  const Eigen::AlignedBox3d& bounds() const { return bounds_; }
 
  private:
   GlossyRenderer() = default;
@@ -56,7 +71,13 @@ class GlossyRenderer {
   std::unique_ptr<Gpu> gpu_;
   bool needs_envmap_ = false;
   size_t envmap_bytes_ = 0, triangles_ = 0;
+  Eigen::Matrix3d env_from_world_ = Eigen::Matrix3d::Identity();
+  Eigen::AlignedBox3d bounds_;
 };
+
+// The pinhole part of a calibrated view as a Screen (lens distortion is not
+// applied to the environment pass).
+Screen screen_for_view(const Intrinsics& K, const Eigen::Isometry3d& world_from_camera);
 
 // True when some object's material has a glossy weight above 0.
 bool scene_is_glossy(const RtScene& scene);
@@ -85,5 +106,48 @@ struct GlossyComparison {
 ImageU8 roughness_ramps(int bands);
 Result<GlossyComparison> compare_glossy_sphere(std::shared_ptr<const Panorama> panorama, std::shared_ptr<const EnvironmentMap> map,
                                                const ImageU8& roughness, int size, int threads = 0);
+
+}  // namespace s2r
+
+namespace s2r {
+
+// What `s2r render` and `s2r view` put around a model: the panorama as
+// backdrop, a floor under the object (the plane through the model's lowest
+// point along `up`, three object radii each way) and glossy spheres. The
+// environment map is loaded from `envmap`, or built from the panorama, only
+// when something is glossy; otherwise nothing is built or bound and the
+// report says so.
+struct EnvironmentSetup {
+  std::filesystem::path panorama;
+  std::filesystem::path envmap;                 // a prebuilt map; empty: built when needed
+  bool clamp = false;                           // clamp non-finite panorama pixels (with a warning)
+  double floor_roughness = -1;                  // < 0: no floor
+  std::filesystem::path floor_roughness_texture;  // per-pixel roughness (first channel / 255), 4 tiles per side
+  Eigen::Vector3f floor_colour{0.45f, 0.45f, 0.45f};
+  float floor_glossy = 0.5f;                    // k_g of the floor (0: matte, no map needed)
+  struct Prop {
+    Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+    double radius = 0.05, roughness = 0.2;
+  };
+  std::vector<Prop> props;                      // glossy spheres (k_g = 1)
+  Eigen::Vector3d up = Eigen::Vector3d::UnitZ();  // the world's up: the table frame is z up
+  EnvmapOptions envmap_options;
+};
+
+struct PreparedEnvironment {
+  std::unique_ptr<GlossyRenderer> renderer;
+  std::shared_ptr<const EnvironmentMap> map;
+  double envmap_seconds = 0;  // built or loaded
+  std::string envmap_source;  // "built", "loaded" or "not needed"
+  std::vector<std::string> warnings;
+};
+
+// What was built, loaded or left out, into a stage's report.
+void report_environment(const PreparedEnvironment& env, Report& report);
+
+// Needs a current OpenGL context.
+Result<PreparedEnvironment> prepare_environment(const EnvironmentSetup& setup, const Eigen::AlignedBox3d& model_bounds);
+// Rows: a horizontal axis, up, and their cross product: world -> panorama (y up).
+Eigen::Matrix3d environment_from_world(const Eigen::Vector3d& up);
 
 }  // namespace s2r

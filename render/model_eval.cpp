@@ -150,11 +150,21 @@ Result<Report> run_render_job(const RenderJob& job) {
   const ViewCamera v = scaled(*view, job.scale);
   auto fb = Framebuffer::create(v.K.width, v.K.height);
   if (!fb) return std::unexpected(fb.error());
-  auto st = r->renderer->draw(v, job.draw, *fb);
-  if (!st) return std::unexpected(st.error());
-  if (auto w = write_image(job.out, fb->read_rgb()); !w) return std::unexpected(w.error());
   Report rep;
   rep.stage = "render";
+  DrawOptions draw = job.draw;
+  PreparedEnvironment env;
+  if (job.environment) {
+    auto e = prepare_environment(*job.environment, r->model.bounds);
+    if (!e) return std::unexpected(e.error());
+    env = std::move(*e);
+    draw.environment = env.renderer.get();
+    report_environment(env, rep);
+  }
+  auto st = r->renderer->draw(v, draw, *fb);
+  if (!st) return std::unexpected(st.error());
+  if (auto w = write_image(job.out, fb->read_rgb()); !w) return std::unexpected(w.error());
+  if (job.environment) rep.params["envmap_bound"] = st->envmap_bound;
   add_selection(rep, *st, "");
   rep.counts["triangles"] = double(st->triangles);
   rep.counts["texture_mib"] = double(r->renderer->texture_bytes()) / (1 << 20);

@@ -20,6 +20,7 @@
 #include "core/result.h"
 #include "capture/session.h"
 #include "reconstruct/reconstruct_job.h"
+#include "render/glossy_renderer.h"
 #include "render/model_renderer.h"
 
 namespace s2r {
@@ -60,6 +61,7 @@ struct RenderJob {
   FrameSource source;
   DrawOptions draw;
   double scale = 1;           // image size relative to the view's
+  std::optional<EnvironmentSetup> environment;  // backdrop, glossy floor and props
 };
 Result<Report> run_render_job(const RenderJob& job);
 

@@ -11,6 +11,7 @@
 #include "core/image_io.h"
 #include "core/mesh.h"
 #include "core/parallel.h"
+#include "render/glossy_renderer.h"
 #include "core/paths.h"
 #include "core/report.h"
 #include "render/gl_program.h"
@@ -508,14 +509,25 @@ Result<DrawStats> ModelRenderer::draw(const ViewCamera& view, const DrawOptions&
   const Eigen::Vector3d eye = view.eye();
   double far_m = 0;
   for (int c = 0; c < 8; ++c) far_m = std::max(far_m, (model_.bounds.corner(Eigen::AlignedBox3d::CornerType(c)) - eye).norm());
+  Eigen::AlignedBox3d drawn = model_.bounds;
+  if (o.environment && !o.environment->bounds().isEmpty()) {
+    drawn.extend(o.environment->bounds());
+    for (int c = 0; c < 8; ++c) far_m = std::max(far_m, (drawn.corner(Eigen::AlignedBox3d::CornerType(c)) - eye).norm());
+  }
   far_m = std::min(std::max(far_m * 1.05, 1e-3), o.far_m);
-  const double outside = model_.bounds.exteriorDistance(eye);
+  const double outside = drawn.exteriorDistance(eye);
   const float near_m = float(std::clamp(0.5 * outside, std::max(far_m * 1e-5, 1e-5), std::max(o.near_m, far_m * 1e-5)));
 
   target.bind();
   glClearColor(o.background[0], o.background[1], o.background[2], 0.f);
   glClearDepth(1.0);
   glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
+  if (o.environment) {
+    auto env = o.environment->draw_into_bound(eye, screen_for_view(view.K, view.world_from_camera), near_m, far_m);
+    if (!env) return std::unexpected(with_context(env.error(), "environment"));
+    st.environment_drawn = true;
+    st.envmap_bound = env->envmap_bound;
+  }
   glEnable(GL_DEPTH_TEST);
   glDepthFunc(GL_LESS);
   glDisable(GL_CULL_FACE);

@@ -42,6 +42,8 @@
 
 namespace s2r {
 
+class GlossyRenderer;
+
 struct DrawOptions {
   // kMesh: the octree's patch mesh; kSurface: the fused surface mesh.
   enum class Geometry { kBillboards, kMesh, kSurface };
@@ -59,6 +61,9 @@ struct DrawOptions {
   SelectionOptions selection;
   float background[3] = {0.f, 0.f, 0.f};
   double near_m = 0.01, far_m = 100.0;
+  // Drawn first into the same depth buffer: the panorama as backdrop and the
+  // glossy floor and props (render/glossy_renderer.h). Not owned.
+  GlossyRenderer* environment = nullptr;
 };
 
 struct DrawStats {
@@ -66,6 +71,7 @@ struct DrawStats {
   size_t triangles = 0;       // mesh
   double cpu_ms = 0;          // selection + upload + submit
   double frame_ms = 0;        // until the image is finished (glFinish)
+  bool environment_drawn = false, envmap_bound = false;
 };
 
 class ModelRenderer {

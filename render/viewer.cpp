@@ -228,6 +228,16 @@ Result<Report> run_viewer(const ViewerOptions& opt) {
   state.renderer = renderer->get();
   state.orbit = make_orbit(*state.model);
   state.draw = opt.draw;
+  Report rep;
+  rep.stage = "view";
+  PreparedEnvironment env;
+  if (opt.environment) {
+    auto e = prepare_environment(*opt.environment, state.model->bounds);
+    if (!e) return std::unexpected(e.error());
+    env = std::move(*e);
+    state.draw.environment = env.renderer.get();
+    report_environment(env, rep);
+  }
   if (!opt.start_view.empty()) {
     auto v = load_view_file(opt.start_view);
     if (!v) return std::unexpected(v.error());
@@ -242,8 +252,6 @@ Result<Report> run_viewer(const ViewerOptions& opt) {
   spdlog::info("{} facets, {} cameras, {:.0f} MiB of camera textures; {}", state.model->facets.size(),
                state.model->cameras.size(), double((*renderer)->texture_bytes()) / (1 << 20), win.describe());
 
-  Report rep;
-  rep.stage = "view";
   Stopwatch total;
   std::optional<Framebuffer> fb;
   double ms_sum = 0, ms_window = 0;

@@ -13,10 +13,12 @@
 #pragma once
 
 #include <filesystem>
+#include <optional>
 #include <string>
 
 #include "core/report.h"
 #include "core/result.h"
+#include "render/glossy_renderer.h"
 #include "render/model_renderer.h"
 
 namespace s2r {
@@ -29,6 +31,7 @@ struct ViewerOptions {
   std::filesystem::path start_view;   // a view file to start at
   double orbit_deg_per_frame = 0;     // > 0: turn the orbit each frame (timing a moving view)
   DrawOptions draw;
+  std::optional<EnvironmentSetup> environment;  // backdrop, glossy floor and props
 };
 
 // The orbit camera the viewer starts from: around the model's bounds centre,

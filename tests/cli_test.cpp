@@ -93,6 +93,31 @@ TEST(Cli, SynthInspectPreviewWithReports) {
   r = s2r("render " + (dir / "m3").string() + " --view 3 --session " + (dir / "s").string() + " --geometry mesh --out " +
           (dir / "r" / "v3.png").string());
   EXPECT_EQ(r.code, 0) << r.out;
+  // The panorama as backdrop: nothing glossy, so no environment map (the
+  // report says so); a glossy floor and a sphere build one.
+  const std::string pano = std::string(S2R_DATA_DIR) + "/hdri/venice_sunset_1k.hdr";
+  r = s2r("render " + (dir / "m3").string() + " --view 1 --panorama " + pano + " --out " + (dir / "e1" / "v1.png").string());
+  ASSERT_EQ(r.code, 0) << r.out;
+  {
+    std::ifstream f(dir / "e1" / "report.json");
+    const std::string text((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+    EXPECT_NE(text.find("environment_map_not_needed_no_glossy_material"), std::string::npos) << text;
+  }
+  r = s2r("render " + (dir / "m3").string() + " --view 1 --panorama " + pano + " --floor 0.3 --envmap-size 16 --sphere 0,0,0,0.01,0.1 --out " +
+          (dir / "e2" / "v1.png").string());
+  ASSERT_EQ(r.code, 0) << r.out;
+  {
+    std::ifstream f(dir / "e2" / "report.json");
+    const std::string text((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+    EXPECT_NE(text.find("\"built\""), std::string::npos) << text;
+    EXPECT_NE(text.find("\"envmap_bound\": true"), std::string::npos) << text;
+  }
+  r = s2r("render " + (dir / "m3").string() + " --view 1 --floor 0.3 --out " + (dir / "e3" / "v1.png").string());
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.out.find("--panorama"), std::string::npos) << r.out;
+  r = s2r("render " + (dir / "m3").string() + " --view 1 --sphere 1,2,3 --out " + (dir / "e3" / "v1.png").string());
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.out.find("--sphere"), std::string::npos) << r.out;
   r = s2r("eval " + (dir / "m3").string() + " --session " + (dir / "s").string() + " --holdout 3,1 --out " + (dir / "e").string());
   ASSERT_EQ(r.code, 0) << r.out;
   for (const char* f : {"frame_0003.png", "frame_0001.png", "eval.csv", "report.json"}) EXPECT_TRUE(fs::exists(dir / "e" / f)) << f;
