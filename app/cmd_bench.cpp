@@ -23,6 +23,9 @@
 #include "render/model_eval.h"
 #include "render/envmap.h"
 #include "render/glossy_renderer.h"
+#include "render/gl_context.h"
+#include "render/material_lod.h"
+#include "core/image_metrics.h"
 #include "render/raytrace_job.h"
 #include "core/atomic_file.h"
 
@@ -798,6 +801,114 @@ int bench_envmap(const fs::path& out, int voxels) {
   return finish(rep, out / "report.json");
 }
 
+// The seed's material LOD comparison: parallax occlusion mapping everywhere
+// against the per-pixel switch by eq. 4.1, on a flat board and on a roof
+// model, for the seed's (R, D) conditions and a flat material (whose detailed
+// method is bump mapping). Frame time best of N interleaved; PSNR against the
+// detailed method over all pixels and inside the switch band |V - T| <= blend.
+int bench_material(const fs::path& out, int repeats) {
+  Stopwatch total;
+  Report rep;
+  rep.stage = "bench.material";
+  std::error_code ec;
+  fs::create_directories(out, ec);
+  auto ctx = create_headless_context();
+  if (!ctx) return error(ctx.error().message);
+  const int W = 800, H = 500;
+  auto fb = Framebuffer::create(W, H);
+  if (!fb) return error(fb.error().message);
+  struct Case {
+    double R, D;
+  };
+  const std::vector<Case> cases{{200, 200}, {200, 600}, {200, 1000}, {600, 200}, {1000, 200}, {1000, 1000}, {200, 0}};
+  SweepTable t;
+  t.columns = {"time_ratio", "psnr_all_db", "psnr_band_db", "detailed_ms", "lod_ms", "threshold_T", "switch_distance_m",
+               "detailed_fraction", "band_fraction", "R", "D"};
+  MaterialDrawOptions base;
+  for (const char* scene_name : {"board", "roof"}) {
+    const MaterialScene scene = std::string(scene_name) == "board" ? material_board_scene(W, H) : material_roof_scene(W, H);
+    for (const Case& c : cases) {
+      const ReliefMaterial mat = brick_material(256, 2 + c.R / 1000 * 8, c.D / 1000 * 0.1);
+      auto r = MaterialRenderer::create(scene.mesh, mat);
+      if (!r) return error(r.error().message);
+      MaterialDrawOptions detailed = base, lod = base, vmap = base;
+      detailed.method = (*r)->flat() ? MaterialMethod::kBump : MaterialMethod::kParallax;
+      lod.method = MaterialMethod::kLod;
+      vmap.method = MaterialMethod::kDistanceMap;
+      auto warm = (*r)->draw(scene.eye, scene.screen, *fb, detailed);
+      if (!warm) return error(warm.error().message);
+      std::vector<double> td, tl, ratios;
+      ImageU8 img_d, img_l;
+      for (int k = 0; k < repeats; ++k) {
+        auto a = (*r)->draw(scene.eye, scene.screen, *fb, detailed);
+        if (!a) return error(a.error().message);
+        img_d = fb->read_rgb();
+        auto b = (*r)->draw(scene.eye, scene.screen, *fb, lod);
+        if (!b) return error(b.error().message);
+        img_l = fb->read_rgb();
+        td.push_back(a->frame_ms);
+        tl.push_back(b->frame_ms);
+        ratios.push_back(b->frame_ms / a->frame_ms);
+      }
+      if (auto v = (*r)->draw(scene.eye, scene.screen, *fb, vmap); !v) return error(v.error().message);
+      const ImageU8 vimg = fb->read_rgb();
+      const double T = (*r)->threshold();
+      ImageU8 band(W, H, 1);
+      size_t in_band = 0, detailed_px = 0, covered = 0;
+      for (int y = 0; y < H; ++y)
+        for (int x = 0; x < W; ++x) {
+          const bool sky = vimg.at(x, y, 2) != 0;  // the distance map's blue is 0 on surfaces
+          const double V = 1000.0 * (vimg.at(x, y, 0) + vimg.at(x, y, 1) / 255.0) / 255.0;
+          const bool b = !sky && std::abs(V - T) <= base.blend;
+          band.at(x, y, 0) = b ? 255 : 0;
+          in_band += b;
+          if (!sky) {
+            ++covered;
+            if (V < T - base.blend) ++detailed_px;
+          }
+        }
+      const double all = psnr(img_l, img_d).value_or(0);
+      const double in = in_band ? psnr(img_l, img_d, &band).value_or(0) : INFINITY;
+      const double best_d = *std::min_element(td.begin(), td.end()), best_l = *std::min_element(tl.begin(), tl.end());
+      const std::string key = fmt::format("{}_R{:g}_D{:g}", scene_name, c.R, c.D);
+      t.row_labels.push_back(key);
+      t.rows.push_back({best_l / best_d, std::isinf(all) ? 100.0 : all, std::isinf(in) ? 100.0 : in, best_d, best_l, T,
+                        base.near_m + T / 1000 * (base.far_m - base.near_m), double(detailed_px) / std::max<size_t>(1, covered),
+                        double(in_band) / std::max<size_t>(1, covered), c.R, c.D});
+      rep.errors["time_ratio_" + key] = best_l / best_d;
+      rep.errors["time_ratio_median_paired_" + key] = median(ratios);
+      rep.errors["psnr_all_db_" + key] = std::isinf(all) ? 100.0 : all;
+      rep.errors["psnr_switch_band_db_" + key] = std::isinf(in) ? 100.0 : in;
+      rep.counts["detailed_ms_" + key] = best_d;
+      rep.counts["lod_ms_" + key] = best_l;
+      rep.skipped["pixels_without_parallax_" + key] = double(covered - detailed_px);
+      std::fprintf(stderr, "%-22s T %.0f (%.1f m): %s everywhere %.1f ms, LOD %.1f ms (%.0f %%); PSNR all %.1f dB, switch band %.1f dB\n",
+                   key.c_str(), T, base.near_m + T / 1000 * (base.far_m - base.near_m), (*r)->flat() ? "bump" : "POM", best_d,
+                   best_l, 100 * best_l / best_d, all, in);
+      if (c.R == 200 && (c.D == 200 || c.D == 0)) {
+        ImageU8 strip(W, 2 * H, 3);
+        for (int y = 0; y < H; ++y)
+          for (int x = 0; x < W; ++x)
+            for (int ch = 0; ch < 3; ++ch) {
+              strip.at(x, y, ch) = img_l.at(x, y, ch);
+              const int d = std::min(255, 8 * std::abs(int(img_l.at(x, y, ch)) - int(img_d.at(x, y, ch))));
+              strip.at(x, y + H, ch) = static_cast<uint8_t>(band.at(x, y, 0) ? std::max(d, ch == 2 ? 90 : 0) : d);
+            }
+        if (auto w = write_image(out / (key + ".png"), strip); !w) return error(w.error().message);
+      }
+    }
+  }
+  if (auto st = t.write_csv(out / "material.csv"); !st) return error(st.error().message);
+  PlotSpec spec{"Material LOD: PSNR against the detailed method vs frame time ratio (llvmpipe, 800x500)",
+                "LOD frame time / detailed frame time", "PSNR over all pixels (dB)", "time_ratio", {"psnr_all_db"}, true, false, false};
+  if (auto st = plot_png(t, spec, out / "material.png"); !st) rep.warnings.push_back(st.error().message);
+  rep.params["renderer"] = (*ctx)->describe();
+  rep.params["repeats"] = double(repeats);
+  rep.params["blend_v"] = base.blend;
+  rep.seconds = total.seconds();
+  return finish(rep, out / "report.json");
+}
+
 }  // namespace
 
 void add_bench_commands(CLI::App& app) {
@@ -812,7 +923,9 @@ void add_bench_commands(CLI::App& app) {
                   "render (held-out PSNR vs 1280x720 frame ms per drawing setting, rig bunny and fuzzy, textured meshes in the same run), "
                   "raytrace (the seed's four CAVE scenes: visual-field LOD time vs the full render, gaze forward and down, PSNR inside "
                   "the central field and over all pixels), envmap (environment map error against brute-force Phong vs build seconds "
-                  "and memory, per size, weight threshold and pyramid resolution; every bundled panorama)")
+                  "and memory, per size, weight threshold and pyramid resolution; every bundled panorama; a GL glossy sphere against the ray "
+                  "tracer), material (texture / bump / parallax occlusion mapping switched per pixel by the seed's thresholds, "
+                  "frame time and PSNR against parallax everywhere, on a board and a roof model)")
       ->required();
   sub->add_option("--out", *out, "output folder")->required();
   sub->add_option("--repeats", *repeats, "renders per point (median)")->capture_default_str();
@@ -832,7 +945,8 @@ void add_bench_commands(CLI::App& app) {
       if (*stage == "render") return bench_render(*out, *scene);
       if (*stage == "raytrace") return bench_raytrace(*out, std::max(7, *repeats), *size);
       if (*stage == "envmap") return bench_envmap(*out, std::max(100, *voxels));
-      std::fprintf(stderr, "s2r bench %s: not yet available in this build (only 'rig', 'capture', 'calibrate', 'register', 'reconstruct', 'render', 'raytrace' and 'envmap')\n", stage->c_str());
+      if (*stage == "material") return bench_material(*out, std::max(5, *repeats));
+      std::fprintf(stderr, "s2r bench %s: not yet available in this build (only 'rig', 'capture', 'calibrate', 'register', 'reconstruct', 'render', 'raytrace', 'envmap' and 'material')\n", stage->c_str());
       return 2;
     });
   });
