@@ -73,7 +73,7 @@ DrawOptions draw_options(const DrawArgs& a) {
 
 // Backdrop, glossy floor and props around a model (render, view).
 struct EnvArgs {
-  std::string panorama, envmap, floor_map, up = "z";
+  std::string panorama, envmap, floor_map, floor_relief, up = "z";
   double floor = -1, floor_glossy = 0.5;
   std::vector<std::string> spheres;
   int envmap_size = 128;
@@ -87,6 +87,8 @@ void add_environment_options(CLI::App* sub, EnvArgs& a) {
   sub->add_option("--floor", a.floor, "a glossy floor under the object with this roughness (0 mirror .. 1 rough)")
       ->check(CLI::Range(0.0, 1.0));
   sub->add_option("--floor-roughness-map", a.floor_map, "per-pixel floor roughness from this image's first channel (4 tiles per side)");
+  sub->add_option("--floor-relief", a.floor_relief, "a brick relief floor instead, R,D in the seed's 0..1000 (pattern repeats, "
+                  "relief depth), drawn with material LOD (parallax occlusion near, bump mapping beyond the seed's threshold)");
   sub->add_option("--floor-glossy", a.floor_glossy, "k_g of the floor: its share of glossy reflection (0: matte, no map)")
       ->check(CLI::Range(0.0, 1.0))->capture_default_str();
   sub->add_option("--sphere", a.spheres, "a glossy sphere prop X,Y,Z,RADIUS,ROUGHNESS in world metres (repeatable)");
@@ -99,7 +101,7 @@ std::optional<std::vector<double>> numbers(const std::string& text, size_t count
 
 // Empty optional: no environment asked for. An error message in `why`.
 std::optional<EnvironmentSetup> environment_setup(const EnvArgs& a, std::string* why) {
-  if (a.panorama.empty() && a.envmap.empty() && a.floor < 0 && a.spheres.empty()) return std::nullopt;
+  if (a.panorama.empty() && a.envmap.empty() && a.floor < 0 && a.spheres.empty() && a.floor_relief.empty()) return std::nullopt;
   EnvironmentSetup e;
   e.panorama = a.panorama;
   e.envmap = a.envmap;
@@ -109,6 +111,15 @@ std::optional<EnvironmentSetup> environment_setup(const EnvArgs& a, std::string*
   e.floor_glossy = static_cast<float>(a.floor_glossy);
   e.envmap_options.size = a.envmap_size;
   if (!a.floor_map.empty() && a.floor < 0) e.floor_roughness = 0.5;
+  if (!a.floor_relief.empty()) {
+    auto v = numbers(a.floor_relief, 2);
+    if (!v || (*v)[0] < 0 || (*v)[0] > 1000 || (*v)[1] < 0 || (*v)[1] > 1000) {
+      *why = "--floor-relief: expected R,D each in 0..1000, got '" + a.floor_relief + "'";
+      return std::nullopt;
+    }
+    e.floor_relief_R = (*v)[0];
+    e.floor_relief_D = (*v)[1];
+  }
   if (a.up == "z") e.up = Eigen::Vector3d::UnitZ();
   else if (a.up == "y") e.up = Eigen::Vector3d::UnitY();
   else if (auto v = numbers(a.up, 3); v && Eigen::Vector3d((*v)[0], (*v)[1], (*v)[2]).norm() > 0) e.up = {(*v)[0], (*v)[1], (*v)[2]};

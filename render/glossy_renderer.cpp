@@ -283,30 +283,10 @@ Screen screen_for_view(const Intrinsics& K, const Eigen::Isometry3d& world_from_
 
 Result<GlossyDrawStats> GlossyRenderer::draw_into_bound(const Eigen::Vector3d& eye, const Screen& screen, double near_req, double far_m) {
   if (auto v = screen.validate(); !v) return std::unexpected(v.error());
-  // Off-axis frustum through the screen rectangle (right and down orthogonal).
-  const Eigen::Vector3d xh = screen.right.normalized(), yh = -screen.down.normalized(), zh = xh.cross(yh);
-  const Eigen::Vector3d rel = screen.corner - eye;
-  const double dist = -rel.dot(zh);
-  if (!(dist > 0)) return fail("the eye is on or behind the screen's plane");
-  const double near_m = near_req > 0 ? near_req : std::min(0.01, 0.5 * dist);
-  if (!(far_m > near_m)) return fail("the far plane must lie beyond the near plane");
-  const double l = rel.dot(xh), r = l + screen.right.norm(), t = rel.dot(yh), b = t - screen.down.norm();
-  Eigen::Matrix4d proj = Eigen::Matrix4d::Zero();
-  const double k = near_m / dist;
-  const double L = l * k, R = r * k, B = b * k, T = t * k;
-  proj(0, 0) = 2 * near_m / (R - L);
-  proj(0, 2) = (R + L) / (R - L);
-  proj(1, 1) = 2 * near_m / (T - B);
-  proj(1, 2) = (T + B) / (T - B);
-  proj(2, 2) = -(far_m + near_m) / (far_m - near_m);
-  proj(2, 3) = -2 * far_m * near_m / (far_m - near_m);
-  proj(3, 2) = -1;
-  Eigen::Matrix4d view = Eigen::Matrix4d::Identity();
-  view.block<1, 3>(0, 0) = xh.transpose();
-  view.block<1, 3>(1, 0) = yh.transpose();
-  view.block<1, 3>(2, 0) = zh.transpose();
-  view.block<3, 1>(0, 3) = -view.block<3, 3>(0, 0) * eye;
-  const Eigen::Matrix4f vp = (proj * view).cast<float>();
+  const double near_m = near_req > 0 ? near_req : std::min(0.01, 0.5 * screen_distance(eye, screen));
+  auto matrix = off_axis_view_projection(eye, screen, near_m, far_m);
+  if (!matrix) return std::unexpected(matrix.error());
+  const Eigen::Matrix4f vp = *matrix;
 
   Gpu& g = *gpu_;
   const auto start = std::chrono::steady_clock::now();
@@ -365,6 +345,10 @@ Result<GlossyDrawStats> GlossyRenderer::draw_into_bound(const Eigen::Vector3d& e
   }
   glBindVertexArray(0);
   glActiveTexture(GL_TEXTURE0);
+  if (relief_) {
+    auto rs = relief_->draw_into_bound(eye, screen, near_m, far_m, relief_options_);
+    if (!rs) return std::unexpected(with_context(rs.error(), "relief floor"));
+  }
   GlossyDrawStats st;
   st.frame_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
   st.envmap_bound = g.envmap != 0;
@@ -507,21 +491,22 @@ Result<PreparedEnvironment> prepare_environment(const EnvironmentSetup& setup, c
   const double radius = 0.5 * bounds.diagonal().norm();
   double lowest = std::numeric_limits<double>::infinity();
   for (int c = 0; c < 8; ++c) lowest = std::min(lowest, up.dot(bounds.corner(Eigen::AlignedBox3d::CornerType(c))));
-  if (setup.floor_roughness >= 0) {
-    if (setup.floor_roughness > 1) return fail("floor roughness must be in [0, 1]");
-    RtObject floor;
-    floor.name = "floor";
+  if (setup.floor_roughness > 1) return fail("floor roughness must be in [0, 1]");
+  const bool relief = setup.floor_relief_R >= 0;
+  RtMesh floor_mesh;
+  if (setup.floor_roughness >= 0 || relief) {
     const Eigen::Matrix3d R = environment_from_world(up);
     const Eigen::Vector3d a = R.row(0).transpose(), b = R.row(2).transpose();
     const Eigen::Vector3d o = centre + (lowest - up.dot(centre)) * up;
     const double h = 3 * radius;
     const int n = 16;  // a grid, so per-vertex interpolation is not all the floor has
+    const float tiles = 4.f;  // the roughness map, or the relief's pattern, 4 times per side
     for (int j = 0; j <= n; ++j)
       for (int i = 0; i <= n; ++i) {
         const double u = static_cast<double>(i) / n, v = static_cast<double>(j) / n;
-        floor.mesh.vertices.push_back((o + (2 * u - 1) * h * a + (2 * v - 1) * h * b).cast<float>());
-        floor.mesh.normals.push_back(up.cast<float>());
-        floor.mesh.uvs.emplace_back(static_cast<float>(4 * u), static_cast<float>(4 * v));
+        floor_mesh.vertices.push_back((o + (2 * u - 1) * h * a + (2 * v - 1) * h * b).cast<float>());
+        floor_mesh.normals.push_back(up.cast<float>());
+        floor_mesh.uvs.emplace_back(static_cast<float>(tiles * u), static_cast<float>(tiles * v));
       }
     std::vector<Eigen::Vector3i> tris;
     for (int j = 0; j < n; ++j)
@@ -530,7 +515,12 @@ Result<PreparedEnvironment> prepare_environment(const EnvironmentSetup& setup, c
         tris.emplace_back(k, k + 1, k + n + 2);
         tris.emplace_back(k, k + n + 2, k + n + 1);
       }
-    floor.mesh.levels = {tris};
+    floor_mesh.levels = {tris};
+  }
+  if (setup.floor_roughness >= 0 && !relief) {
+    RtObject floor;
+    floor.name = "floor";
+    floor.mesh = floor_mesh;
     floor.material.diffuse = setup.floor_colour;
     floor.material.glossy = setup.floor_glossy;
     floor.material.glossy_exponent = static_cast<float>(roughness_to_exponent(setup.floor_roughness));
@@ -577,6 +567,17 @@ Result<PreparedEnvironment> prepare_environment(const EnvironmentSetup& setup, c
   auto r = GlossyRenderer::create(scene, map);
   if (!r) return std::unexpected(r.error());
   (*r)->set_environment_from_world(environment_from_world(up));
+  if (relief) {
+    const double Rn = std::clamp(setup.floor_relief_R, 0.0, 1000.0), Dn = std::clamp(setup.floor_relief_D, 0.0, 1000.0);
+    auto material = MaterialRenderer::create(floor_mesh, brick_material(256, 2 + Rn / 1000 * 8, Dn / 1000 * 0.1));
+    if (!material) return std::unexpected(with_context(material.error(), "relief floor"));
+    MaterialDrawOptions mo;
+    mo.near_m = 0;
+    mo.far_m = 12 * radius;  // V: 0 at the eye, 1000 at the far edge of the floor seen from nearby
+    Eigen::AlignedBox3d box;
+    for (const auto& v : floor_mesh.vertices) box.extend(v.cast<double>());
+    (*r)->set_relief(std::move(*material), mo, box);
+  }
   out.renderer = std::move(*r);
   out.map = map;
   return out;

@@ -32,6 +32,7 @@
 #include "core/result.h"
 #include "render/envmap.h"
 #include "render/framebuffer.h"
+#include "render/material_lod.h"
 #include "render/raytracer.h"
 
 namespace s2r {
@@ -64,6 +65,13 @@ class GlossyRenderer {
   // frame is z up). Identity by default.
   void set_environment_from_world(const Eigen::Matrix3d& rotation) { env_from_world_ = rotation; }
   const Eigen::AlignedBox3d& bounds() const { return bounds_; }
+  // A relief-mapped object drawn after the glossy ones (the floor with
+  // material LOD: texture / bump / parallax occlusion mapping per pixel).
+  void set_relief(std::unique_ptr<MaterialRenderer> relief, const MaterialDrawOptions& options, const Eigen::AlignedBox3d& box) {
+    relief_ = std::move(relief);
+    relief_options_ = options;
+    bounds_.extend(box);
+  }
 
  private:
   GlossyRenderer() = default;
@@ -73,6 +81,8 @@ class GlossyRenderer {
   size_t envmap_bytes_ = 0, triangles_ = 0;
   Eigen::Matrix3d env_from_world_ = Eigen::Matrix3d::Identity();
   Eigen::AlignedBox3d bounds_;
+  std::unique_ptr<MaterialRenderer> relief_;
+  MaterialDrawOptions relief_options_;
 };
 
 // The pinhole part of a calibrated view as a Screen (lens distortion is not
@@ -123,6 +133,9 @@ struct EnvironmentSetup {
   bool clamp = false;                           // clamp non-finite panorama pixels (with a warning)
   double floor_roughness = -1;                  // < 0: no floor
   std::filesystem::path floor_roughness_texture;  // per-pixel roughness (first channel / 255), 4 tiles per side
+  // A relief floor instead (brick wall material, render/material_lod.h): R and
+  // D in the seed's 0..1000, drawn with material LOD; not glossy. R < 0: none.
+  double floor_relief_R = -1, floor_relief_D = 200;
   Eigen::Vector3f floor_colour{0.45f, 0.45f, 0.45f};
   float floor_glossy = 0.5f;                    // k_g of the floor (0: matte, no map needed)
   struct Prop {

@@ -255,18 +255,14 @@ Result<std::unique_ptr<MaterialRenderer>> MaterialRenderer::create(const RtMesh&
   return r;
 }
 
-Result<MaterialDrawStats> MaterialRenderer::draw(const Eigen::Vector3d& eye, const Screen& screen, const Framebuffer& target,
-                                                 const MaterialDrawOptions& o) {
+Result<Eigen::Matrix4f> off_axis_view_projection(const Eigen::Vector3d& eye, const Screen& screen, double n, double f) {
   if (auto v = screen.validate(); !v) return std::unexpected(v.error());
-  if (screen.width != target.width() || screen.height != target.height()) return fail("the screen and the target differ in size");
-  if (!(o.far_m > o.near_m) || !(o.blend >= 0) || o.pom_min_layers < 1 || o.pom_max_layers < o.pom_min_layers)
-    return fail("material LOD: needs far > near, blend >= 0 and 1 <= min layers <= max layers");
-  // The same off-axis frustum as the glossy renderer: the screen rectangle seen from the eye.
   const Eigen::Vector3d xh = screen.right.normalized(), yh = -screen.down.normalized(), zh = xh.cross(yh);
   const Eigen::Vector3d rel = screen.corner - eye;
   const double dist = -rel.dot(zh);
   if (!(dist > 0)) return fail("the eye is on or behind the screen's plane");
-  const double n = std::min(0.01, 0.5 * dist), f = 1000, k = n / dist;
+  if (!(n > 0) || !(f > n)) return fail("needs 0 < near < far");
+  const double k = n / dist;
   const double l = rel.dot(xh) * k, r = (rel.dot(xh) + screen.right.norm()) * k, t = rel.dot(yh) * k,
                b = (rel.dot(yh) - screen.down.norm()) * k;
   Eigen::Matrix4d proj = Eigen::Matrix4d::Zero();
@@ -282,11 +278,35 @@ Result<MaterialDrawStats> MaterialRenderer::draw(const Eigen::Vector3d& eye, con
   view.block<1, 3>(1, 0) = yh.transpose();
   view.block<1, 3>(2, 0) = zh.transpose();
   view.block<3, 1>(0, 3) = -view.block<3, 3>(0, 0) * eye;
-  const Eigen::Matrix4f vp = (proj * view).cast<float>();
-  Gpu& g = *gpu_;
+  return Eigen::Matrix4f((proj * view).cast<float>());
+}
+
+double screen_distance(const Eigen::Vector3d& eye, const Screen& screen) {
+  const Eigen::Vector3d zh = screen.right.normalized().cross(-screen.down.normalized());
+  return -(screen.corner - eye).dot(zh);
+}
+
+Result<MaterialDrawStats> MaterialRenderer::draw(const Eigen::Vector3d& eye, const Screen& screen, const Framebuffer& target,
+                                                 const MaterialDrawOptions& o) {
+  if (screen.width != target.width() || screen.height != target.height()) return fail("the screen and the target differ in size");
   const auto start = std::chrono::steady_clock::now();
   target.bind();
   target.clear(0.5f, 0.6f, 0.75f);
+  auto st = draw_into_bound(eye, screen, std::min(0.01, 0.5 * screen_distance(eye, screen)), 1000, o);
+  if (!st) return st;
+  glFinish();
+  st->frame_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  return st;
+}
+
+Result<MaterialDrawStats> MaterialRenderer::draw_into_bound(const Eigen::Vector3d& eye, const Screen& screen, double near_m,
+                                                            double far_m, const MaterialDrawOptions& o) {
+  if (!(o.far_m > o.near_m) || !(o.blend >= 0) || o.pom_min_layers < 1 || o.pom_max_layers < o.pom_min_layers)
+    return fail("material LOD: needs far > near, blend >= 0 and 1 <= min layers <= max layers");
+  auto matrix = off_axis_view_projection(eye, screen, near_m, far_m);
+  if (!matrix) return std::unexpected(matrix.error());
+  const Eigen::Matrix4f vp = *matrix;
+  Gpu& g = *gpu_;
   glEnable(GL_DEPTH_TEST);
   glDepthFunc(GL_LESS);
   glUseProgram(g.program.id());
@@ -315,9 +335,7 @@ Result<MaterialDrawStats> MaterialRenderer::draw(const Eigen::Vector3d& eye, con
   glDrawArrays(GL_TRIANGLES, 0, g.vertices);
   glBindVertexArray(0);
   glActiveTexture(GL_TEXTURE0);
-  glFinish();
   MaterialDrawStats st;
-  st.frame_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
   st.threshold = threshold_;
   if (GLenum err = glGetError(); err != GL_NO_ERROR) return fail(fmt::format("OpenGL error {:#x} while drawing the relief", err));
   return st;

@@ -74,6 +74,9 @@ class MaterialRenderer {
   MaterialRenderer& operator=(const MaterialRenderer&) = delete;
   Result<MaterialDrawStats> draw(const Eigen::Vector3d& eye, const Screen& screen, const Framebuffer& target,
                                  const MaterialDrawOptions& options);
+  // Into the bound target, sharing its depth buffer (near/far as the caller's).
+  Result<MaterialDrawStats> draw_into_bound(const Eigen::Vector3d& eye, const Screen& screen, double near_m, double far_m,
+                                            const MaterialDrawOptions& options);
   double threshold() const { return threshold_; }
   bool flat() const { return flat_; }
 
@@ -85,6 +88,13 @@ class MaterialRenderer {
   bool flat_ = false;
   float repeats_ = 1, depth_ = 0;
 };
+
+// The OpenGL matrix that maps the screen rectangle seen from `eye` onto the
+// viewport (right and down orthogonal), with OpenGL's depth mapping between
+// near and far. Fails when the eye is on or behind the screen's plane.
+Result<Eigen::Matrix4f> off_axis_view_projection(const Eigen::Vector3d& eye, const Screen& screen, double near_m, double far_m);
+// A distance to the screen's plane, for a default near plane.
+double screen_distance(const Eigen::Vector3d& eye, const Screen& screen);
 
 // The two scenes of the seed's comparison: a flat board receding from the
 // eye, and a "roof" model (rows of gabled roofs, many faces at many angles).

@@ -112,6 +112,17 @@ TEST(Cli, SynthInspectPreviewWithReports) {
     EXPECT_NE(text.find("\"built\""), std::string::npos) << text;
     EXPECT_NE(text.find("\"envmap_bound\": true"), std::string::npos) << text;
   }
+  // A brick relief floor with material LOD: not glossy, so again no map.
+  r = s2r("render " + (dir / "m3").string() + " --view 1 --floor-relief 200,600 --out " + (dir / "e4" / "v1.png").string());
+  ASSERT_EQ(r.code, 0) << r.out;
+  {
+    std::ifstream f(dir / "e4" / "report.json");
+    const std::string text((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+    EXPECT_NE(text.find("environment_map_not_needed_no_glossy_material"), std::string::npos) << text;
+  }
+  r = s2r("render " + (dir / "m3").string() + " --view 1 --floor-relief 200,2000 --out " + (dir / "e4" / "v1.png").string());
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.out.find("--floor-relief"), std::string::npos) << r.out;
   r = s2r("render " + (dir / "m3").string() + " --view 1 --floor 0.3 --out " + (dir / "e3" / "v1.png").string());
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.out.find("--panorama"), std::string::npos) << r.out;
