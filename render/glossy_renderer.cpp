@@ -380,11 +380,8 @@ Result<GlossyComparison> compare_glossy_sphere(std::shared_ptr<const Panorama> p
   scene.textures.push_back(roughness);
   RtObject sphere;
   sphere.name = "glossy sphere";
-  const Mesh m = icosphere(5);
-  sphere.mesh.vertices = m.vertices;
-  sphere.mesh.normals = m.normals;
-  sphere.mesh.levels = {m.faces};
-  for (const auto& v : m.vertices)  // latitude only: no seam in v
+  sphere.mesh = sphere_mesh(5);
+  for (const auto& v : sphere.mesh.vertices)  // latitude only: no seam in v
     sphere.mesh.uvs.emplace_back(0.5f, 0.5f + std::asin(std::clamp(v.y(), -1.f, 1.f)) / static_cast<float>(M_PI));
   sphere.material.diffuse.setZero();
   sphere.material.specular.setZero();
@@ -532,16 +529,13 @@ Result<PreparedEnvironment> prepare_environment(const EnvironmentSetup& setup, c
     }
     scene.objects.push_back(std::move(floor));
   }
-  const Mesh ball = icosphere(4);
   for (size_t i = 0; i < setup.props.size(); ++i) {
     const auto& p = setup.props[i];
     if (!p.centre.allFinite() || !(p.radius > 0) || !(p.roughness >= 0 && p.roughness <= 1))
       return fail(fmt::format("prop {}: needs a finite centre, a radius > 0 and a roughness in [0, 1]", i));
     RtObject s;
     s.name = fmt::format("sphere {}", i);
-    for (const auto& v : ball.vertices) s.mesh.vertices.push_back((p.centre + p.radius * v.cast<double>()).cast<float>());
-    s.mesh.normals = ball.normals;
-    s.mesh.levels = {ball.faces};
+    s.mesh = sphere_mesh(4, p.centre, p.radius);
     s.material.diffuse = {0.8f, 0.8f, 0.8f};
     s.material.glossy = 1;
     s.material.glossy_exponent = static_cast<float>(roughness_to_exponent(p.roughness));

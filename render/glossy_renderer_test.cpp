@@ -67,10 +67,7 @@ TEST(GlossyRenderer, NoGlossyMaterialBindsNoEnvironmentMap) {
   scene.environment = sky(32, 16);
   RtObject ball;
   ball.name = "diffuse ball";
-  const Mesh m = icosphere(2);
-  ball.mesh.vertices = m.vertices;
-  ball.mesh.normals = m.normals;
-  ball.mesh.levels = {m.faces};
+  ball.mesh = sphere_mesh(2);
   scene.objects.push_back(ball);
   EXPECT_FALSE(scene_is_glossy(scene));
   auto r = GlossyRenderer::create(scene, nullptr);  // no map given, none needed

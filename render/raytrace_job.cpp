@@ -46,6 +46,15 @@ ImageU8 unfold_cave(const std::vector<ImageU8>& walls) {
   return out;
 }
 
+RtMesh sphere_mesh(int subdivisions, const Eigen::Vector3d& centre, double radius) {
+  const Mesh m = icosphere(subdivisions);
+  RtMesh out;
+  for (const auto& v : m.vertices) out.vertices.push_back((centre + radius * v.cast<double>()).cast<float>());
+  out.normals = m.normals;
+  out.levels = {m.faces};
+  return out;
+}
+
 Result<RtMesh> lod_mesh(const Mesh& mesh, size_t n_max, size_t n_min, int levels) {
   if (mesh.faces.empty()) return fail("mesh has no triangles");
   if (n_max < 1 || n_min < 1 || n_min > n_max) return fail("need 1 <= N_min <= N_max");

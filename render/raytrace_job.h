@@ -41,6 +41,8 @@ ImageU8 unfold_cave(const std::vector<ImageU8>& walls);
 Result<RtMesh> lod_mesh(const Mesh& mesh, size_t n_max, size_t n_min, int levels);
 // A closed unit sphere (subdivided icosahedron), for tests and props.
 Mesh icosphere(int subdivisions);
+// An icosphere of this centre and radius as a one-level tracer mesh with normals.
+RtMesh sphere_mesh(int subdivisions, const Eigen::Vector3d& centre = Eigen::Vector3d::Zero(), double radius = 1);
 
 struct SeedSceneOptions {
   char scene = 'A';  // A..D
