@@ -128,7 +128,6 @@ Pyramid build_pyramid(const Panorama& pano) {
     for (int y = 0; y < c.height; ++y) {
       const double a0 = f.area[2 * y], a1 = f.area[2 * y + 1];
       c.area[y] = static_cast<float>(2 * (a0 + a1));
-      const double theta = M_PI / 2 - M_PI * (y + 0.5) / c.height;
       for (int x = 0; x < c.width; ++x) {
         const size_t i = static_cast<size_t>(y) * c.width + x;
         const auto px = [&](int xx, int yy) { return f.rgb[static_cast<size_t>(yy) * f.width + xx].cast<double>(); };
@@ -142,14 +141,13 @@ Pyramid build_pyramid(const Panorama& pano) {
         for (int dy = 0; dy < 2; ++dy)
           for (int dx = 0; dx < 2; ++dx) {
             const size_t ci = static_cast<size_t>(2 * y + dy) * f.width + 2 * x + dx;
-            const double energy = (dy ? a1 : a0) * f.rgb[ci].cast<double>().dot(Eigen::Vector3d(0.2126, 0.7152, 0.0722));
+            const double energy = (dy ? a1 : a0) * static_cast<double>(f.rgb[ci].dot(kLuma));
             centroid += energy * f.dir[ci].cast<double>();
           }
         if (centroid.norm() > 0) {
           c.dir[i] = centroid.normalized().cast<float>();
         } else {
-          const double phi = 2 * M_PI * (x + 0.5) / c.width - M_PI;
-          c.dir[i] = Eigen::Vector3d(std::cos(theta) * std::sin(phi), std::sin(theta), -std::cos(theta) * std::cos(phi)).cast<float>();
+          c.dir[i] = equirect_direction(x, y, c.width, c.height).cast<float>();
         }
       }
     }
@@ -180,6 +178,8 @@ Eigen::Vector3f lobe(const Level& lv, const Bright& bright, const Eigen::Vector3
   const int y0 = std::max(0, static_cast<int>(std::ceil((M_PI / 2 - (lat0 + window)) * H / M_PI - 0.5)));
   const int y1 = std::min(H - 1, static_cast<int>(std::floor((M_PI / 2 - (lat0 - window)) * H / M_PI - 0.5)));
   const double cos_w = std::cos(window), sin_lat0 = std::sin(lat0), cos_lat0 = std::cos(lat0);
+  // log of (u.w)^L from the chord: no cancellation where cos is near 1.
+  const auto log_weight = [&](const Eigen::Vector3f& w) { return Lf == 0 ? 0.f : Lf * std::log1p(-0.5f * (uf - w).squaredNorm()); };
   float top = -std::numeric_limits<float>::infinity();
   for (int y = y0; y <= y1; ++y) {
     const double lat = M_PI / 2 - M_PI * (y + 0.5) / H;
@@ -202,8 +202,7 @@ Eigen::Vector3f lobe(const Level& lv, const Bright& bright, const Eigen::Vector3
       const int x = ((x0 + n) % W + W) % W;
       const Eigen::Vector3f& w = lv.dir[row + x];
       if (uf.dot(w) <= 0) continue;
-      // log cos from the chord: no cancellation where cos is near 1.
-      const float lw = Lf == 0 ? 0.f : Lf * std::log1p(-0.5f * (uf - w).squaredNorm());
+      const float lw = log_weight(w);
       s.log_weight.push_back(lw);
       s.area.push_back(area);
       s.colour.push_back(&lv.rgb[row + x]);
@@ -223,8 +222,7 @@ Eigen::Vector3f lobe(const Level& lv, const Bright& bright, const Eigen::Vector3
   for (size_t b = 0; b < bright.dir.size(); ++b) {
     const float c = uf.dot(bright.dir[b]);
     if (c <= 0 || c < bright_cos) continue;
-    const float lw = Lf == 0 ? 0.f : Lf * std::log1p(-0.5f * (uf - bright.dir[b]).squaredNorm());
-    sum += static_cast<double>(std::exp(lw - top)) * bright.area[b] * bright.excess[b].cast<double>();
+    sum += static_cast<double>(std::exp(log_weight(bright.dir[b]) - top)) * bright.area[b] * bright.excess[b].cast<double>();
     *samples += 1;
   }
   return (sum / norm).cast<float>();

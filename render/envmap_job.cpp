@@ -123,9 +123,7 @@ ImageU8 envmap_preview(const EnvironmentMap& map, int width) {
   for (int band = 0; band < 5; ++band)
     for (int y = 0; y < h; ++y)
       for (int x = 0; x < width; ++x) {
-        const double phi = 2 * M_PI * (x + 0.5) / width - M_PI;
-        const double theta = M_PI / 2 - M_PI * (y + 0.5) / h;
-        const Eigen::Vector3d d(std::cos(theta) * std::sin(phi), std::sin(theta), -std::cos(theta) * std::cos(phi));
+        const Eigen::Vector3d d = equirect_direction(x, y, width, h);
         // lambda = 0 is the one voxel at the centre: show the nearly uniform lobes just outside it.
         const Eigen::Vector3f v = map.lookup(d * std::max(lambdas[band], 1.0 / map.size()));
         for (int c = 0; c < 3; ++c)

@@ -11,10 +11,10 @@
 #include "core/image_io.h"
 #include "core/mesh.h"
 #include "core/parallel.h"
-#include "render/glossy_renderer.h"
 #include "core/paths.h"
 #include "core/report.h"
 #include "render/gl_program.h"
+#include "render/glossy_renderer.h"
 
 namespace s2r {
 

@@ -31,11 +31,13 @@ Result<Panorama> Panorama::create(ImageF rgb) {
   return out;
 }
 
-Eigen::Vector3d Panorama::direction(int x, int y) const {
-  const double phi = 2 * M_PI * (x + 0.5) / rgb_.width - M_PI;
-  const double theta = M_PI / 2 - M_PI * (y + 0.5) / rgb_.height;
+Eigen::Vector3d equirect_direction(int x, int y, int width, int height) {
+  const double phi = 2 * M_PI * (x + 0.5) / width - M_PI;
+  const double theta = M_PI / 2 - M_PI * (y + 0.5) / height;
   return {std::cos(theta) * std::sin(phi), std::sin(theta), -std::cos(theta) * std::cos(phi)};
 }
+
+Eigen::Vector3d Panorama::direction(int x, int y) const { return equirect_direction(x, y, rgb_.width, rgb_.height); }
 
 double Panorama::solid_angle(int y) const {
   const double theta = M_PI / 2 - M_PI * (y + 0.5) / rgb_.height;

@@ -27,6 +27,9 @@
 
 namespace s2r {
 
+// The direction of pixel (x, y) of a W x H equirectangular image (convention above).
+Eigen::Vector3d equirect_direction(int x, int y, int width, int height);
+
 class Panorama {
  public:
   // Linear RGB (3 channels, or 1 read as grey), at least 4 x 2. Non-finite or
