@@ -506,6 +506,33 @@ int bench_render(const fs::path& out, const std::string& scene_in) {
     s.draw.geometry = DrawOptions::Geometry::kSurface;
     settings.push_back(s);
   }
+  // Level of detail, each against "billboards k=3" (no LOD) in the same run:
+  // blended cameras below a share left out, and the octree LOD's thresholds
+  // (T_s contour pixels, T_b luminance x pixels, T_e texel pixels).
+  const std::string no_lod = "billboards k=3";
+  std::vector<std::string> lod_labels;
+  for (double mw : {0.05, 0.1, 0.2}) {
+    Setting s{fmt::format("k=3, min weight {}", mw), {}};
+    s.draw.selection.min_weight = mw;
+    settings.push_back(s);
+    lod_labels.push_back(s.label);
+  }
+  struct LodSetting {
+    double shape, luminance, texel, min_weight;
+  };
+  for (const LodSetting& l : {LodSetting{0.5, 1.5, 1, 0}, LodSetting{1, 3, 2, 0}, LodSetting{2, 5, 4, 0},
+                              LodSetting{4, 10, 8, 0}, LodSetting{0.5, 1.5, 1, 0.1}, LodSetting{1, 3, 2, 0.1}}) {
+    Setting s{fmt::format("octree LOD T_s={} T_b={} T_e={}{}", l.shape, l.luminance, l.texel,
+                          l.min_weight > 0 ? fmt::format(", min weight {}", l.min_weight) : std::string()),
+              {}};
+    s.draw.lod.enabled = true;
+    s.draw.lod.shape_px = l.shape;
+    s.draw.lod.luminance = l.luminance;
+    s.draw.lod.texel_px = l.texel;
+    s.draw.selection.min_weight = l.min_weight;
+    settings.push_back(s);
+    lod_labels.push_back(s.label);
+  }
   SweepTable t;
   t.columns = {"frame_ms", "psnr_db", "ssim", "coverage", "facets_drawn"};
   for (const auto& scene : scenes) {
@@ -548,6 +575,20 @@ int bench_render(const fs::path& out, const std::string& scene_in) {
       rep.counts[fmt::format("frame_ms_{}_{}", scene, setting.label)] = timing->median_ms;
       std::fprintf(stderr, "%s, %s: held-out PSNR %.2f dB, %.1f ms per 1280x720 frame\n", scene.c_str(), setting.label.c_str(), p,
                    timing->median_ms);
+    }
+    // LOD against no LOD: the time ratio and the PSNR change, and whether it
+    // cuts time at equal PSNR (within 0.5 dB).
+    const auto base_ms = rep.counts.find(fmt::format("frame_ms_{}_{}", scene, no_lod));
+    const auto base_db = rep.errors.find(fmt::format("psnr_db_{}_{}", scene, no_lod));
+    if (base_ms == rep.counts.end() || base_db == rep.errors.end()) continue;
+    for (const auto& label : lod_labels) {
+      const auto ms = rep.counts.find(fmt::format("frame_ms_{}_{}", scene, label));
+      const auto db = rep.errors.find(fmt::format("psnr_db_{}_{}", scene, label));
+      if (ms == rep.counts.end() || db == rep.errors.end()) continue;
+      const double ratio = ms->second / base_ms->second, delta = db->second - base_db->second;
+      rep.counts[fmt::format("lod_time_ratio_{}_{}", scene, label)] = ratio;
+      rep.errors[fmt::format("lod_psnr_change_db_{}_{}", scene, label)] = delta;
+      if (ratio < 1 && delta > -0.5) rep.counts[fmt::format("lod_faster_at_equal_psnr_{}_{}", scene, label)] = 1;
     }
   }
   if (auto st = t.write_csv(out / "render.csv"); !st) return error(st.error().message);

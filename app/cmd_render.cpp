@@ -40,6 +40,10 @@ struct DrawArgs {
   bool no_clip = false, by_camera = false, no_cull = false;
   double clip = 0.8660254037844386, scale = 1.7320508075688772, pixel_error = 0.5;
   int refine = 2;
+  double min_weight = 0;
+  bool lod = false;
+  double lod_shape = 0.5, lod_luminance = 1.5, lod_texel = 1.0;
+  std::string gaze;  // "" off, "centre", or X,Y pixels
 };
 
 void add_draw_options(CLI::App* sub, DrawArgs& a) {
@@ -53,6 +57,17 @@ void add_draw_options(CLI::App* sub, DrawArgs& a) {
   sub->add_option("--billboard-scale", a.scale, "billboard width / w (at least sqrt 3)")->capture_default_str();
   sub->add_flag("--by-camera", a.by_camera, "colour each facet by its chosen camera");
   sub->add_flag("--no-cull", a.no_cull, "draw every facet (no frustum or back-face culling)");
+  sub->add_option("--min-weight", a.min_weight, "leave out blended cameras whose share is below this (0: keep the best k)")
+      ->check(CLI::Range(0.0, 0.5))->capture_default_str();
+  sub->add_flag("--lod", a.lod, "octree level of detail: coarser billboards where the contour, luminance and texel tests allow");
+  sub->add_option("--lod-shape", a.lod_shape, "T_s: contour shape error allowed on screen (pixels)")
+      ->check(CLI::PositiveNumber)->capture_default_str();
+  sub->add_option("--lod-luminance", a.lod_luminance, "T_b: luminance range (0..1) x projected node side (pixels) allowed")
+      ->check(CLI::PositiveNumber)->capture_default_str();
+  sub->add_option("--lod-texel", a.lod_texel, "T_e: texel misplacement bound of a coarse billboard on screen (pixels)")
+      ->check(CLI::PositiveNumber)->capture_default_str();
+  sub->add_option("--gaze", a.gaze, "visual-field LOD (with --lod) around a gaze point: 'centre' or X,Y in pixels; "
+                  "coarser in the periphery, nothing outside the field");
 }
 
 DrawOptions draw_options(const DrawArgs& a) {
@@ -68,7 +83,28 @@ DrawOptions draw_options(const DrawArgs& a) {
   d.billboard_scale = a.scale;
   d.color_by_camera = a.by_camera;
   d.selection.frustum_cull = d.selection.backface_cull = !a.no_cull;
+  d.selection.min_weight = a.min_weight;
+  d.lod.enabled = a.lod;
+  d.lod.shape_px = a.lod_shape;
+  d.lod.luminance = a.lod_luminance;
+  d.lod.texel_px = a.lod_texel;
   return d;
+}
+
+std::optional<std::vector<double>> numbers(const std::string& text, size_t count);
+
+// --gaze: false with a message in `why` when malformed.
+bool apply_gaze(const DrawArgs& a, DrawOptions& d, std::string* why) {
+  if (a.gaze.empty()) return true;
+  d.lod.field = true;
+  if (a.gaze == "centre" || a.gaze == "center") return true;
+  auto g = numbers(a.gaze, 2);
+  if (!g) {
+    *why = "--gaze wants 'centre' or X,Y in pixels, got '" + a.gaze + "'";
+    return false;
+  }
+  d.lod.gaze_px = Eigen::Vector2d((*g)[0], (*g)[1]);
+  return true;
 }
 
 // Backdrop, glossy floor and props around a model (render, view).
@@ -97,7 +133,6 @@ void add_environment_options(CLI::App* sub, EnvArgs& a) {
   sub->add_flag("--clamp-panorama", a.clamp, "clamp NaN/Inf/negative panorama pixels with a warning instead of refusing it");
 }
 
-std::optional<std::vector<double>> numbers(const std::string& text, size_t count);
 
 // Empty optional: no environment asked for. An error message in `why`.
 std::optional<EnvironmentSetup> environment_setup(const EnvArgs& a, std::string* why) {
@@ -176,6 +211,7 @@ void add_render(CLI::App& app) {
       if (!job.view && job.view_file.empty()) return error("give --view I or --pose FILE");
       job.source = a->source;
       job.draw = draw_options(a->draw);
+      if (std::string why; !apply_gaze(a->draw, job.draw, &why)) return error(why);
       job.scale = a->scale;
       std::string why;
       job.environment = environment_setup(a->env, &why);
@@ -217,6 +253,7 @@ void add_eval(CLI::App& app) {
       job.frames = *frames;
       job.out = a->out.empty() ? fs::path(a->model) / "eval" : fs::path(a->out);
       job.draw = draw_options(a->draw);
+      if (std::string why; !apply_gaze(a->draw, job.draw, &why)) return error(why);
       job.baselines = !a->no_baselines;
       auto r = run_eval_job(job);
       if (!r) return error(r.error().message);
@@ -252,6 +289,7 @@ void add_view(CLI::App& app) {
       o.screenshot = a->screenshot;
       o.start_view = a->pose;
       o.draw = draw_options(a->draw);
+      if (std::string why; !apply_gaze(a->draw, o.draw, &why)) return error(why);
       std::string why;
       o.environment = environment_setup(a->env, &why);
       if (!why.empty()) return error(why);

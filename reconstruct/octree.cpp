@@ -263,4 +263,22 @@ size_t boundary_edges(const Mesh& mesh) {
   return odd;
 }
 
+std::vector<OctreeRecord> octree_records(const SurfaceOctree& tree) {
+  std::vector<OctreeRecord> out;
+  out.reserve(tree.nodes().size());
+  for (const auto& n : tree.nodes()) {
+    OctreeRecord r{};
+    for (int k = 0; k < 3; ++k)
+      r.vertex[k] = n.vertex[k], r.normal[k] = n.normal[k], r.origin[k] = n.origin[k] + tree.base_cell()[k];
+    r.cone = n.cone;
+    r.shape_error = n.shape_error;
+    r.first_child = n.first_child < 0 ? kNoChild : uint32_t(n.first_child);
+    r.children = n.children;
+    r.edge_flags = n.edge_flags;
+    r.level = uint8_t(n.level);
+    out.push_back(r);
+  }
+  return out;
+}
+
 }  // namespace s2r

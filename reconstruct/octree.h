@@ -24,6 +24,7 @@
 #include <Eigen/Core>
 
 #include "core/mesh.h"
+#include "reconstruct/model.h"
 
 namespace s2r {
 
@@ -56,6 +57,9 @@ class SurfaceOctree {
   const std::vector<OctreeNode>& nodes() const { return nodes_; }
   int max_level() const { return max_level_; }
   double voxel() const { return voxel_; }
+  // Node origins are relative to this cell; add it for absolute cells (the
+  // model file's OctreeRecord::origin).
+  const Eigen::Vector3i& base_cell() const { return base_; }
   size_t leaves() const { return leaf_count_; }
   size_t crossings() const { return edges_.size(); }
 
@@ -79,6 +83,9 @@ class SurfaceOctree {
   std::vector<CrossingEdge> edges_;
   std::vector<int32_t> edge_cells_;  // 4 leaf node indices per crossing edge
 };
+
+// The tree as the model file's records (absolute cell origins), breadth first.
+std::vector<OctreeRecord> octree_records(const SurfaceOctree& tree);
 
 // Boundary edges of a triangle mesh (used by an odd number of triangles): 0
 // for a closed surface.

@@ -122,3 +122,19 @@ TEST(Octree, EmptyAndDegenerateInput) {
   const SurfaceOctree t = SurfaceOctree::build({{{0, 0, 0}, std::nanf("")}, {{1, 0, 0}, 0.01f}, {{2, 0, 0}, -0.01f}}, 0.001);
   EXPECT_EQ(t.crossings(), 0u);
 }
+
+// The model file's records carry absolute cells: every node's vertex lies in
+// the cube its origin and level name (cell i spans the samples i..i+1).
+TEST(Octree, RecordsUseAbsoluteCells) {
+  const double w = 0.002;
+  const SurfaceOctree t = SurfaceOctree::build(sphere(9.2, {40.3, -17.6, 5.1}, w), w);
+  const auto records = octree_records(t);
+  ASSERT_EQ(records.size(), t.nodes().size());
+  for (const auto& r : records) {
+    const int cells = 1 << (t.max_level() - r.level);
+    for (int k = 0; k < 3; ++k) {
+      EXPECT_GE(r.vertex[k] / w, r.origin[k] - 1e-3);
+      EXPECT_LE(r.vertex[k] / w, r.origin[k] + cells + 1e-3);
+    }
+  }
+}

@@ -442,17 +442,7 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
     // band's edge. (With 2 w, the rig bunny's patch mesh had 7,560 boundary
     // edges; with 3.5 w, 1,406.)
     const SurfaceOctree tree = SurfaceOctree::build(samples, w0, 3.5);
-    for (const auto& n : tree.nodes()) {
-      OctreeRecord r{};
-      for (int k = 0; k < 3; ++k) r.vertex[k] = n.vertex[k], r.normal[k] = n.normal[k], r.origin[k] = n.origin[k];
-      r.cone = n.cone;
-      r.shape_error = n.shape_error;
-      r.first_child = n.first_child < 0 ? kNoChild : uint32_t(n.first_child);
-      r.children = n.children;
-      r.edge_flags = n.edge_flags;
-      r.level = uint8_t(n.level);
-      model.octree.push_back(r);
-    }
+    model.octree = octree_records(tree);
     model.octree_max_level = tree.max_level();
     rep.counts["octree_nodes"] = double(tree.nodes().size());
     rep.counts["octree_leaves"] = double(tree.leaves());

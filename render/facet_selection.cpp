@@ -34,24 +34,50 @@ int blend_weights(const double* a, int count, int k, float* weights) {
   return used;
 }
 
-SelectionStats select_facets(const Model& model, const ViewCamera& view, const SelectionOptions& o,
-                             std::vector<FacetInstance>& out) {
+int prune_weights(float* w, int used, double min_weight) {
+  if (used <= 1 || !(min_weight > 0)) return used;
+  int kept = 1;
+  float sum = w[0];
+  for (int i = 1; i < used; ++i)
+    if (w[i] >= min_weight) {
+      w[kept++] = w[i];
+      sum += w[i];
+    }
+  for (int i = 0; i < kept; ++i) w[i] /= sum;
+  for (int i = kept; i < used; ++i) w[i] = 0.f;
+  return kept;
+}
+
+bool sphere_outside_view(const Eigen::Isometry3d& camera_from_world, const Intrinsics& K, const Eigen::Vector3d& c,
+                         double radius, double near_m) {
+  const Eigen::Vector3d p = camera_from_world * c;
+  if (p.z() + radius <= near_m) return true;
+  if (p.z() <= radius) return false;  // the sphere contains the eye plane: keep
+  // The lens moves points by a few per cent of the image; the test uses the
+  // pinhole part with that much margin.
+  const double margin_x = 0.1 * K.width, margin_y = 0.1 * K.height;
+  const double z = p.z() - radius;  // nearest depth: the largest footprint
+  const double u = K.fx * p.x() / p.z() + K.cx, v = K.fy * p.y() / p.z() + K.cy;
+  const double ru = K.fx * radius / z + margin_x, rv = K.fy * radius / z + margin_y;
+  return u + ru < -0.5 || v + rv < -0.5 || u - ru > K.width - 0.5 || v - rv > K.height - 0.5;
+}
+
+SelectionStats select_facets(const FacetSet& set, const std::vector<ModelCamera>& cameras, const ViewCamera& view,
+                             const SelectionOptions& o, std::vector<FacetInstance>& out) {
   Stopwatch clock;
   SelectionStats total;
-  total.facets = model.facets.size();
+  const std::vector<FacetRecord>& facets = set.facets;
+  const size_t count = set.candidates ? set.candidates->size() : facets.size();
+  total.facets = count;
   out.clear();
   const int k = std::clamp(o.cameras, 1, kMaxBlendCameras);
   const Eigen::Isometry3d camera_from_world = view.world_from_camera.inverse();
   const Eigen::Vector3d eye = view.eye();
   std::vector<Eigen::Vector3d> centres;
-  for (const auto& c : model.cameras) centres.push_back(c.world_from_camera.translation());
-  const Intrinsics& K = view.K;
-  // The lens moves points by a few per cent of the image; the frustum test
-  // uses the pinhole part with that much margin.
-  const double margin_x = 0.1 * K.width, margin_y = 0.1 * K.height;
+  for (const auto& c : cameras) centres.push_back(c.world_from_camera.translation());
 
   constexpr int kChunk = 4096;
-  const int chunks = static_cast<int>((model.facets.size() + kChunk - 1) / kChunk);
+  const int chunks = static_cast<int>((count + kChunk - 1) / kChunk);
   std::vector<std::vector<FacetInstance>> parts(static_cast<size_t>(chunks));
   std::vector<SelectionStats> stats(static_cast<size_t>(chunks));
   parallel_for(chunks, o.threads, [&](int chunk) {
@@ -59,26 +85,14 @@ SelectionStats select_facets(const Model& model, const ViewCamera& view, const S
     auto& st = stats[size_t(chunk)];
     std::vector<std::pair<double, int>> cams;
     double angles[kMaxBlendCameras + 1];
-    const size_t end = std::min(model.facets.size(), size_t(chunk + 1) * kChunk);
-    for (size_t i = size_t(chunk) * kChunk; i < end; ++i) {
-      const FacetRecord& f = model.facets[i];
+    const size_t end = std::min(count, size_t(chunk + 1) * kChunk);
+    for (size_t s = size_t(chunk) * kChunk; s < end; ++s) {
+      const size_t i = set.candidates ? (*set.candidates)[s] : s;
+      const FacetRecord& f = facets[i];
       const Eigen::Vector3d c(f.center[0], f.center[1], f.center[2]);
-      const double radius = 0.5 * std::sqrt(3.0) * f.size;
-      if (o.frustum_cull) {
-        const Eigen::Vector3d p = camera_from_world * c;
-        if (p.z() + radius <= o.near_m) {
-          ++st.outside_frustum;
-          continue;
-        }
-        if (p.z() > radius) {  // else the sphere contains the eye plane: keep
-          const double z = p.z() - radius;  // nearest depth: the largest footprint
-          const double u = K.fx * p.x() / p.z() + K.cx, v = K.fy * p.y() / p.z() + K.cy;
-          const double ru = K.fx * radius / z + margin_x, rv = K.fy * radius / z + margin_y;
-          if (u + ru < -0.5 || v + rv < -0.5 || u - ru > K.width - 0.5 || v - rv > K.height - 0.5) {
-            ++st.outside_frustum;
-            continue;
-          }
-        }
+      if (o.frustum_cull && sphere_outside_view(camera_from_world, view.K, c, 0.5 * std::sqrt(3.0) * f.size, o.near_m)) {
+        ++st.outside_frustum;
+        continue;
       }
       Eigen::Vector3d to_eye = eye - c;
       const double dist = to_eye.norm();
@@ -94,7 +108,7 @@ SelectionStats select_facets(const Model& model, const ViewCamera& view, const S
       }
       cams.clear();
       for (uint32_t j = 0; j < f.camera_count; ++j) {
-        const uint32_t ci = model.facet_cameras[f.first_camera + j];
+        const uint32_t ci = set.facet_cameras[f.first_camera + j];
         const Eigen::Vector3d to_cam = (centres[ci] - c).normalized();
         // atan2 of |cross| and dot: accurate at 0 and pi, unlike acos.
         const double angle = std::atan2(to_cam.cross(to_eye).norm(), to_cam.dot(to_eye));
@@ -106,12 +120,14 @@ SelectionStats select_facets(const Model& model, const ViewCamera& view, const S
       FacetInstance inst;
       inst.facet = static_cast<uint32_t>(i);
       float w[kMaxBlendCameras] = {};
-      const int used = blend_weights(angles, int(cams.size()), k, w);
+      const int blended = blend_weights(angles, int(cams.size()), k, w);
+      const int used = prune_weights(w, blended, o.min_weight);
+      st.cameras_pruned += size_t(blended - used);
       for (int j = 0; j < kMaxBlendCameras; ++j) {
         inst.camera[j] = j < used ? cams[size_t(j)].second : -1;
         inst.weight[j] = j < used ? w[j] : 0.f;
       }
-      if (used == 1 && cams.size() > 1) ++st.exact_camera;
+      if (blended == 1 && cams.size() > 1) ++st.exact_camera;
       if (cams.size() == 1) ++st.single_camera;
       part.push_back(inst);
     }
@@ -124,11 +140,12 @@ SelectionStats select_facets(const Model& model, const ViewCamera& view, const S
     total.no_camera += st.no_camera;
     total.exact_camera += st.exact_camera;
     total.single_camera += st.single_camera;
+    total.cameras_pruned += st.cameras_pruned;
   }
   if (o.front_to_back) {
     std::vector<std::pair<float, uint32_t>> order(out.size());
     for (size_t i = 0; i < out.size(); ++i) {
-      const float* c = model.facets[out[i].facet].center;
+      const float* c = facets[out[i].facet].center;
       order[i] = {float((Eigen::Vector3d(c[0], c[1], c[2]) - eye).squaredNorm()), uint32_t(i)};
     }
     std::sort(order.begin(), order.end());

@@ -48,6 +48,11 @@ struct SelectionOptions {
   double backface_cos = -0.25;  // cull when normal . to_eye < this
   double near_m = 0.01;
   bool front_to_back = true;    // sort by distance: occluded fragments fail the depth test before shading
+  // Cameras whose share of the blend is below this are left out and the rest
+  // renormalised (each costs a full texel lookup per fragment); the colour
+  // can then change by at most this share of the cameras' disagreement when
+  // one crosses it. 0: keep every camera of the best k.
+  double min_weight = 0;
   int threads = 0;
 };
 
@@ -67,14 +72,35 @@ struct SelectionStats {
   size_t no_camera = 0;
   size_t exact_camera = 0;      // drawn from one camera at theta = 0: blending skipped
   size_t single_camera = 0;     // only one camera sees it
+  size_t cameras_pruned = 0;    // blend entries below min_weight left out
   double seconds = 0;
 };
 
 // Blend weights for angles sorted ascending (radians); fills up to k entries
 // of `weights`, returns how many are used.
 int blend_weights(const double* sorted_angles, int count, int k, float* weights);
+// Leaves out weights below `min_weight` (never the first, the largest) and
+// renormalises; returns how many remain.
+int prune_weights(float* weights, int used, double min_weight);
 
-SelectionStats select_facets(const Model& model, const ViewCamera& view, const SelectionOptions& options,
-                             std::vector<FacetInstance>& out);
+// Whether a sphere lies wholly outside a view (behind the near plane or off
+// the image, with the lens' margin): the frustum test of facets and nodes.
+bool sphere_outside_view(const Eigen::Isometry3d& camera_from_world, const Intrinsics& K, const Eigen::Vector3d& centre,
+                         double radius, double near_m);
+
+// Facets to choose from: a model's, or a level-of-detail hierarchy's
+// (render/facet_lod.h), optionally only the listed ones.
+struct FacetSet {
+  const std::vector<FacetRecord>& facets;
+  const std::vector<uint32_t>& facet_cameras;
+  const std::vector<uint32_t>* candidates = nullptr;  // null: every facet
+};
+
+SelectionStats select_facets(const FacetSet& set, const std::vector<ModelCamera>& cameras, const ViewCamera& view,
+                             const SelectionOptions& options, std::vector<FacetInstance>& out);
+inline SelectionStats select_facets(const Model& model, const ViewCamera& view, const SelectionOptions& options,
+                                    std::vector<FacetInstance>& out) {
+  return select_facets(FacetSet{model.facets, model.facet_cameras}, model.cameras, view, options, out);
+}
 
 }  // namespace s2r

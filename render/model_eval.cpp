@@ -114,6 +114,20 @@ void add_selection(Report& rep, const DrawStats& st, const std::string& suffix) 
   rep.skipped["facets_back_facing" + suffix] = double(st.selection.back_facing);
   rep.skipped["facets_without_camera" + suffix] = double(st.selection.no_camera);
   rep.skipped["blending_one_exact_camera" + suffix] = double(st.selection.exact_camera);
+  if (st.selection.cameras_pruned) rep.skipped["blended_cameras_below_min_weight" + suffix] = double(st.selection.cameras_pruned);
+  if (st.lod.nodes_visited) {
+    rep.counts["lod_node_billboards" + suffix] = double(st.lod.node_billboards);
+    rep.counts["lod_facets_replaced" + suffix] = double(st.lod.facets_replaced);
+    rep.counts["lod_nodes_visited" + suffix] = double(st.lod.nodes_visited);
+    rep.counts["lod_refined_contour" + suffix] = double(st.lod.refined_contour);
+    rep.counts["lod_refined_luminance" + suffix] = double(st.lod.refined_luminance);
+    rep.counts["lod_refined_texel" + suffix] = double(st.lod.refined_texel);
+    rep.counts["lod_ms" + suffix] = st.lod.seconds * 1e3;
+    rep.counts["lod_loose_facets" + suffix] = double(st.lod.loose_facets);
+    rep.skipped["facets_back_facing_by_normal_cone" + suffix] = double(st.lod.facets_back_cone);
+    rep.skipped["facets_outside_frustum_by_node" + suffix] = double(st.lod.facets_outside_frustum);
+    rep.skipped["facets_outside_visual_field" + suffix] = double(st.lod.facets_outside_field);
+  }
 }
 
 struct Renderer {

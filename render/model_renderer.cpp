@@ -337,6 +337,38 @@ void extend_silhouette_distance(ImageF& d) {
     }
 }
 
+// Each facet's luminance (Rec. 709 weights on the stored 8-bit values, 0..1)
+// at its centre in its most head-on camera (the first that sees it when it
+// has no normal); NaN where that texel is background. The octree LOD's
+// luminance test reads the range of these over a node.
+std::vector<float> facet_luminance(const Model& model, const std::vector<RgbazImage>& tex) {
+  std::vector<float> lum(model.facets.size(), std::numeric_limits<float>::quiet_NaN());
+  std::vector<Eigen::Isometry3d> cfw;
+  for (const auto& c : model.cameras) cfw.push_back(c.world_from_camera.inverse());
+  for (size_t i = 0; i < model.facets.size(); ++i) {
+    const FacetRecord& f = model.facets[i];
+    const Eigen::Vector3d c(f.center[0], f.center[1], f.center[2]), n(f.normal[0], f.normal[1], f.normal[2]);
+    int best = -1;
+    double best_dot = -2;
+    for (uint32_t j = 0; j < f.camera_count; ++j) {
+      const uint32_t ci = model.facet_cameras[f.first_camera + j];
+      if (tex[ci].rgba.empty()) continue;
+      const double d = n.dot((model.cameras[ci].world_from_camera.translation() - c).normalized());
+      if (d > best_dot) best_dot = d, best = int(ci);
+    }
+    if (best < 0) continue;
+    const auto px = model.cameras[size_t(best)].intrinsics.project(cfw[size_t(best)] * c);
+    const ImageU8& img = tex[size_t(best)].rgba;
+    if (!px) continue;
+    const int x = int(std::lround(px->x())), y = int(std::lround(px->y()));
+    if (x < 0 || y < 0 || x >= img.width || y >= img.height) continue;
+    const uint8_t* p = &img.data[(size_t(y) * img.width + x) * 4];
+    if (p[3] == 0) continue;
+    lum[i] = float((0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2]) / 255.0);
+  }
+  return lum;
+}
+
 }  // namespace
 
 struct ModelRenderer::Programs {
@@ -413,6 +445,7 @@ Result<std::unique_ptr<ModelRenderer>> ModelRenderer::create(const Model& model,
                     t.distance.data.data());
   }
   r->texture_bytes_ = size_t(W) * H * layers * 8;
+  r->hierarchy_ = FacetHierarchy::build(model, facet_luminance(model, tex));
 
   // Cameras: 32 floats each (the GLSL Cam struct, std430).
   std::vector<float> cams(n * 32, 0.f);
@@ -436,8 +469,10 @@ Result<std::unique_ptr<ModelRenderer>> ModelRenderer::create(const Model& model,
 
   glGenBuffers(1, &r->facet_ssbo_);
   glBindBuffer(GL_SHADER_STORAGE_BUFFER, r->facet_ssbo_);
-  glBufferData(GL_SHADER_STORAGE_BUFFER, GLsizeiptr(std::max<size_t>(model.facets.size(), 1) * sizeof(FacetRecord)),
-               model.facets.empty() ? nullptr : model.facets.data(), GL_STATIC_DRAW);
+  // The model's facets, then the octree nodes' billboards.
+  const auto& facets = r->hierarchy_.facets();
+  glBufferData(GL_SHADER_STORAGE_BUFFER, GLsizeiptr(std::max<size_t>(facets.size(), 1) * sizeof(FacetRecord)),
+               facets.empty() ? nullptr : facets.data(), GL_STATIC_DRAW);
 
   glGenVertexArrays(1, &r->billboard_vao_);
   glBindVertexArray(r->billboard_vao_);
@@ -549,7 +584,13 @@ Result<DrawStats> ModelRenderer::draw(const ViewCamera& view, const DrawOptions&
   if (o.geometry == DrawOptions::Geometry::kBillboards) {
     SelectionOptions so = o.selection;
     so.near_m = near_m;
-    st.selection = select_facets(model_, view, so, instances_);
+    LodOptions lo = o.lod;
+    lo.backface_cos = so.backface_cos;
+    if (!so.frustum_cull || !so.backface_cull) lo.enabled = false;  // "draw everything" means every model facet
+    st.lod = hierarchy_.select(view, lo, near_m, candidates_);
+    st.selection = select_facets(FacetSet{hierarchy_.facets(), hierarchy_.facet_cameras(), &candidates_}, model_.cameras,
+                                 view, so, instances_);
+    st.selection.facets = model_.facets.size();
     const Eigen::Vector3d up = -view.world_from_camera.linear().col(1);
     glUniform3f(p.uniform("u_up"), float(up.x()), float(up.y()), float(up.z()));
     glUniform1f(p.uniform("u_scale"), float(std::max(o.billboard_scale, std::sqrt(3.0))));

@@ -37,6 +37,7 @@
 #include <string>
 
 #include "core/result.h"
+#include "render/facet_lod.h"
 #include "render/facet_selection.h"
 #include "render/framebuffer.h"
 
@@ -59,6 +60,7 @@ struct DrawOptions {
                                  // that have depth (silhouette-only models are always clipped)
   int refine_steps = 2;          // texel refinement along the view ray (0 = the seed's texel at the billboard point)
   SelectionOptions selection;
+  LodOptions lod;                // octree level of detail of the billboards (render/facet_lod.h)
   float background[3] = {0.f, 0.f, 0.f};
   double near_m = 0.01, far_m = 100.0;
   // Drawn first into the same depth buffer: the panorama as backdrop and the
@@ -68,6 +70,7 @@ struct DrawOptions {
 
 struct DrawStats {
   SelectionStats selection;   // billboards
+  LodStats lod;
   size_t triangles = 0;       // mesh
   double cpu_ms = 0;          // selection + upload + submit
   double frame_ms = 0;        // until the image is finished (glFinish)
@@ -93,6 +96,7 @@ class ModelRenderer {
     return meshes_[g == DrawOptions::Geometry::kSurface ? 1 : 0].triangles > 0;
   }
   size_t texture_bytes() const { return texture_bytes_; }
+  const FacetHierarchy& hierarchy() const { return hierarchy_; }
 
  private:
   ModelRenderer() = default;
@@ -110,6 +114,8 @@ class ModelRenderer {
   size_t texture_bytes_ = 0;
   bool has_reliable_ = false;  // any facet with measured depth
   int texture_width_ = 0, texture_height_ = 0;
+  FacetHierarchy hierarchy_;
+  std::vector<uint32_t> candidates_;
   std::vector<FacetInstance> instances_;
 };
 

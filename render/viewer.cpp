@@ -90,7 +90,18 @@ const char* kHelp =
     "s2r view: left drag orbit | right drag or shift+left pan | wheel zoom\n"
     "  C depth clipping   1-4 cameras blended   M billboards / patch mesh / surface   B colour by camera\n"
     "  W wireframe (mesh)   L culling   N / shift+N next / previous input camera   R reset\n"
+    "  O octree LOD   [ / ] halve / double its thresholds T_s T_b T_e   G visual-field LOD around the centre\n"
+    "  K leave out blended cameras below 10 % share\n"
     "  P save view (view_NNN.json)   S screenshot (screenshot_NNN.png)   H help   Q / Esc quit\n";
+
+std::string lod_status(const DrawOptions& d, const DrawStats& st) {
+  std::string t;
+  if (d.lod.enabled)
+    t += fmt::format(" | LOD T_s {:.2g} T_b {:.2g} T_e {:.2g}: {} coarse for {}", d.lod.shape_px, d.lod.luminance, d.lod.texel_px,
+                     st.lod.node_billboards, st.lod.facets_replaced);
+  if (d.selection.min_weight > 0) t += fmt::format(" | {} blends < {:.2g} left out", st.selection.cameras_pruned, d.selection.min_weight);
+  return t;
+}
 
 void on_key(GLFWwindow* w, int key, int, int action, int mods) {
   if (action != GLFW_PRESS && action != GLFW_REPEAT) return;
@@ -119,6 +130,18 @@ void on_key(GLFWwindow* w, int key, int, int action, int mods) {
         s->orbit.look_from(s->model->cameras[size_t(s->camera_jump)].world_from_camera.translation());
       }
       break;
+    case GLFW_KEY_O: s->draw.lod.enabled = !s->draw.lod.enabled; break;
+    case GLFW_KEY_LEFT_BRACKET:
+    case GLFW_KEY_RIGHT_BRACKET: {
+      const double f = key == GLFW_KEY_LEFT_BRACKET ? 0.5 : 2.0;
+      s->draw.lod.shape_px *= f, s->draw.lod.luminance *= f, s->draw.lod.texel_px *= f;
+      break;
+    }
+    case GLFW_KEY_G:
+      s->draw.lod.field = !s->draw.lod.field;
+      if (s->draw.lod.field) s->draw.lod.enabled = true;
+      break;
+    case GLFW_KEY_K: s->draw.selection.min_weight = s->draw.selection.min_weight > 0 ? 0.0 : 0.1; break;
     case GLFW_KEY_R: s->orbit = make_orbit(*s->model); break;
     case GLFW_KEY_P: s->save_view_now = true; break;
     case GLFW_KEY_S: s->screenshot_now = true; break;
@@ -285,10 +308,13 @@ Result<Report> run_viewer(const ViewerOptions& opt) {
       status_text =
           mesh ? fmt::format("{} {} triangles | {:.1f} ms", state.draw.geometry == DrawOptions::Geometry::kMesh ? "patch mesh" : "surface",
                              st->triangles, ms_window / window_frames)
-               : fmt::format("facets {} drawn, skipped {} frustum {} back-facing {} no camera | {} camera{}{} | clip {} | {:.1f} ms",
-                             se.drawn, se.outside_frustum, se.back_facing, se.no_camera, state.draw.selection.cameras,
-                             state.draw.selection.cameras > 1 ? "s" : "", state.draw.color_by_camera ? " (coloured)" : "",
-                             state.draw.depth_clip ? "on" : "off", ms_window / window_frames);
+               : fmt::format("facets {} drawn, skipped {} frustum {} back-facing {} no camera{} | {} camera{}{} | clip {}{} | {:.1f} ms",
+                             se.drawn, se.outside_frustum + st->lod.facets_outside_frustum,
+                             se.back_facing + st->lod.facets_back_cone, se.no_camera,
+                             state.draw.lod.field ? fmt::format(" {} outside the field", st->lod.facets_outside_field) : "",
+                             state.draw.selection.cameras, state.draw.selection.cameras > 1 ? "s" : "",
+                             state.draw.color_by_camera ? " (coloured)" : "", state.draw.depth_clip ? "on" : "off",
+                             lod_status(state.draw, *st), ms_window / window_frames);
       glfwSetWindowTitle(win.handle(), ("s2r view | " + status_text).c_str());
       ms_window = 0, window_frames = 0;
     }

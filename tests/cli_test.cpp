@@ -123,6 +123,21 @@ TEST(Cli, SynthInspectPreviewWithReports) {
   r = s2r("render " + (dir / "m3").string() + " --view 1 --floor-relief 200,2000 --out " + (dir / "e4" / "v1.png").string());
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.out.find("--floor-relief"), std::string::npos) << r.out;
+  // Octree LOD with the visual field: the report counts the coarse
+  // billboards and what the normal cones culled; a bad gaze is named.
+  r = s2r("render " + (dir / "m3").string() + " --view 1 --lod --lod-texel 8 --lod-shape 4 --lod-luminance 10 --gaze centre "
+          "--min-weight 0.1 --out " + (dir / "l" / "v1.png").string());
+  ASSERT_EQ(r.code, 0) << r.out;
+  {
+    std::ifstream f(dir / "l" / "report.json");
+    const std::string text((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+    EXPECT_NE(text.find("lod_node_billboards"), std::string::npos) << text;
+    EXPECT_NE(text.find("facets_back_facing_by_normal_cone"), std::string::npos) << text;
+    EXPECT_NE(text.find("facets_outside_visual_field"), std::string::npos) << text;
+  }
+  r = s2r("render " + (dir / "m3").string() + " --view 1 --lod --gaze 10 --out " + (dir / "l" / "v1.png").string());
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.out.find("--gaze"), std::string::npos) << r.out;
   r = s2r("render " + (dir / "m3").string() + " --view 1 --floor 0.3 --out " + (dir / "e3" / "v1.png").string());
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.out.find("--panorama"), std::string::npos) << r.out;
