@@ -9,6 +9,7 @@
 
 #include "calibrate/depth_to_color.h"
 #include "calibrate/intrinsics.h"
+#include "calibrate/table_markers.h"
 #include "calibrate/turntable_axis.h"
 #include "capture/capture_devices.h"
 #include "capture/capture_session.h"
@@ -194,6 +195,8 @@ Calibration existing_calibration(const std::string& path) {
   return {};
 }
 
+void add_calibrate_markers(CLI::App* cal);
+
 void add_calibrate(CLI::App& app) {
   auto* cal = app.add_subcommand("calibrate", "Camera intrinsics, depth-to-colour, turntable axis");
   cal->require_subcommand(1);
@@ -322,6 +325,32 @@ void add_calibrate(CLI::App& app) {
       c.axis = a;
       if (auto st = save_calibration(b->out, c); !st) return error(st.error().message);
       return finish(r->report, b->report.empty() ? fs::path(b->out).parent_path() / "report.json" : fs::path(b->report));
+    });
+  });
+  add_calibrate_markers(cal);
+}
+
+void add_calibrate_markers(CLI::App* cal) {
+  auto* mk = cal->add_subcommand("markers",
+                                 "Turntable axis and every frame's table angle from white dot markers on a dark turntable, seen\n"
+                                 "by a fixed RGB-D camera (depth aligned to colour): dots (OpenCV), table plane (PCL RANSAC),\n"
+                                 "dot matches between frames, one joint fit of the centre and the angles (Ceres). The angles are\n"
+                                 "tied to the session: s2r register SESSION --calibration OUT starts from them.");
+  struct Args {
+    std::string session, out, report;
+    MarkerOptions o;
+  };
+  auto a = std::make_shared<Args>();
+  mk->add_option("session", a->session, "session of the object on the marked turntable")->required();
+  mk->add_option("--out", a->out, "calibration file to write")->required();
+  mk->add_option("--match-tolerance", a->o.match_tolerance_m, "dots closer than this (m) after a motion coincide")->capture_default_str();
+  mk->add_option("--min-matches", a->o.min_matches, "dots two frames must share to link them")->capture_default_str();
+  mk->add_option("--report", a->report, "report path (default: beside --out)");
+  mk->callback([a] {
+    set_runner([a] {
+      auto r = run_markers_job(a->session, a->out, a->o);
+      if (!r) return error(r.error().message);
+      return finish(*r, a->report.empty() ? fs::path(a->out).parent_path() / "report.json" : fs::path(a->report));
     });
   });
 }

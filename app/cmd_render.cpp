@@ -40,7 +40,7 @@ struct DrawArgs {
   bool no_clip = false, by_camera = false, no_cull = false;
   double clip = 0.8660254037844386, scale = 1.7320508075688772, pixel_error = 0.5;
   int refine = 2;
-  double min_weight = 0;
+  double min_weight = 0.1;
   bool lod = false;
   double lod_shape = 0.5, lod_luminance = 1.5, lod_texel = 1.0;
   std::string gaze;  // "" off, "centre", or X,Y pixels

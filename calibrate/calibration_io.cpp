@@ -27,6 +27,22 @@ Eigen::Isometry3d Calibration::world_from_camera_at(double angle_deg, Layout lay
   return rotation_about_axis(a.direction_camera, a.point_camera, sign * angle_deg * std::numbers::pi / 180);
 }
 
+size_t mask_off_table(ImageU16& depth, double unit, const Intrinsics& K, const Eigen::Isometry3d& color_from_depth,
+                      const TurntableAxis& axis) {
+  if (!(axis.table_radius_m > 0)) return 0;
+  size_t masked = 0;
+  for (int y = 0; y < depth.height; ++y)
+    for (int x = 0; x < depth.width; ++x) {
+      uint16_t& d = depth.data[size_t(y) * depth.width + x];
+      if (!d) continue;
+      const auto p = K.unproject({double(x), double(y)}, d * unit);
+      if (p && axis.over_table(color_from_depth * *p)) continue;
+      d = 0;
+      ++masked;
+    }
+  return masked;
+}
+
 Status save_calibration(const fs::path& path, const Calibration& c) {
   json j = {{"format", "s2r.calibration"}, {"version", kCalibrationVersion}};
   if (c.color) j["color"] = sensor_json(*c.color);
@@ -40,6 +56,9 @@ Status save_calibration(const fs::path& path, const Calibration& c) {
         {"point_camera", {a.point_camera.x(), a.point_camera.y(), a.point_camera.z()}},
         {"rms_m", a.rms_m},
         {"step_angles_deg", a.step_angles_deg}};
+    if (a.table_radius_m > 0) j["turntable_axis"]["table_radius_m"] = a.table_radius_m;
+    if (!a.frame_angles_deg.empty())
+      j["turntable_axis"]["frames"] = {{"session", a.frames_session}, {"angles_deg", a.frame_angles_deg}};
   }
   return write_file_atomic(path, dump_json(j));
 }
@@ -71,6 +90,20 @@ Result<Calibration> load_calibration(const fs::path& path) {
         for (size_t i = 0; i < s.array_size(); ++i) {
           if (!s.raw()[i].is_number()) s.error("element " + std::to_string(i) + " is not a number");
           axis.step_angles_deg.push_back(s.raw()[i].get<double>());
+        }
+      }
+      if (a.has("table_radius_m")) {
+        axis.table_radius_m = a.number("table_radius_m");
+        if (axis.table_radius_m < 0) a.error("table_radius_m", "must not be negative");
+      }
+      if (a.has("frames")) {
+        FieldReader fr = a.at("frames");
+        axis.frames_session = fr.string("session");
+        FieldReader s = fr.at("angles_deg");
+        for (size_t i = 0; i < s.array_size(); ++i) {
+          if (!s.raw()[i].is_number() || !std::isfinite(s.raw()[i].get<double>()))
+            s.error("element " + std::to_string(i) + " is not a finite number");
+          axis.frame_angles_deg.push_back(s.raw()[i].get<double>());
         }
       }
       c.axis = axis;

@@ -1,4 +1,4 @@
-// The only translation unit of calibrate/ that includes Ceres.
+// One of the few translation units of calibrate/ that include Ceres.
 #include "calibrate/turntable_axis.h"
 #include "calibrate/axis_cost.h"
 

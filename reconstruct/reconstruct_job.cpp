@@ -50,8 +50,9 @@ Result<FramePoses> resolve_frame_poses(const Session& s, const fs::path& poses_f
     if (!c) return std::unexpected(c.error());
     if (!c->axis) return fail("'" + calibration_file.string() + "' has no turntable axis: run s2r calibrate axis, or give --poses");
     for (size_t i = 0; i < s.frames.size(); ++i)
-      fp.world_from_camera[i] = c->world_from_camera_at(s.frames[i].table_angle_reported_deg, s.layout);
-    fp.source = "table angles about the calibrated axis";
+      fp.world_from_camera[i] = c->world_from_camera_at(c->frame_angle_deg(s, i), s.layout);
+    fp.source = c->has_measured_angles(s) ? "measured table angles (markers) about the calibrated axis"
+                                          : "table angles about the calibrated axis";
     return fp;
   }
   if (auto truth = load_synth_truth(s.root); truth && truth->world_from_camera.size() == s.frames.size()) {
@@ -153,6 +154,10 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
         auto d = load_depth(s, f);
         if (!d) return std::unexpected(d.error());
         v.depth = std::move(*d);
+        if (cal && cal->axis) {
+          if (const size_t off = mask_off_table(v.depth, unit, *depth_K, color_from_depth, *cal->axis))
+            rep.skipped["depth_samples_off_the_turntable"] += double(off);
+        }
         // A view whose depth is all zero (or unreadable as numbers) counts as without depth.
         if (std::none_of(v.depth.data.begin(), v.depth.data.end(), [](uint16_t x) { return x != 0; })) {
           rep.warnings.push_back(fmt::format("frame {}: depth has no valid sample; used for colour only", i));

@@ -74,13 +74,20 @@ Result<RegistrationInput> load_stanford_views(const fs::path& conf_path, const P
 Result<RegistrationInput> load_session_views(const Session& s, const Calibration* cal, const PrepOptions& prep) {
   RegistrationInput in;
   const bool use_axis = cal && cal->axis;
+  // Angles measured from this very session's images take the place of the
+  // reported ones.
+  const bool measured_angles = use_axis && cal->has_measured_angles(s);
+  if (use_axis && !cal->axis->frame_angles_deg.empty() && !measured_angles)
+    in.notes.push_back("the calibration's measured frame angles belong to session '" + cal->axis->frames_session +
+                       "' (" + std::to_string(cal->axis->frame_angles_deg.size()) + " frames), not this one: reported angles used");
   if (use_axis) {
     TurntablePrior tt;
     // World = the table frame at angle 0 = the colour camera frame at angle 0.
     tt.direction = cal->axis->direction_camera.normalized();
     tt.point = cal->axis->point_camera;
     in.turntable = tt;
-    in.notes.push_back("initial poses: reported table angles about the calibrated axis");
+    in.notes.push_back(measured_angles ? "initial poses: the table angles measured from the session's markers (s2r calibrate markers)"
+                                       : "initial poses: reported table angles about the calibrated axis");
   } else {
     in.notes.push_back("initial poses: the session's given poses");
   }
@@ -96,11 +103,12 @@ Result<RegistrationInput> load_session_views(const Session& s, const Calibration
   if (cal && cal->color_from_depth) color_from_depth = *cal->color_from_depth;
   std::vector<PointScan> scans;
   std::vector<PrepOptions> per;
+  size_t off_table = 0;
   for (const auto& f : s.frames) {
     RegistrationView v;
     v.name = "frame_" + std::to_string(f.index) + (f.source.empty() ? "" : "_" + f.source);
     if (use_axis) {
-      v.initial = cal->world_from_camera_at(f.table_angle_reported_deg, s.layout);
+      v.initial = cal->world_from_camera_at(cal->frame_angle_deg(s, size_t(&f - s.frames.data())), s.layout);
     } else if (f.world_from_camera) {
       v.initial = *f.world_from_camera;
     } else {
@@ -113,6 +121,7 @@ Result<RegistrationInput> load_session_views(const Session& s, const Calibration
       if (!depth_K) return fail("session has depth frames but no depth sensor intrinsics");
       auto d = load_depth(s, f);
       if (!d) return std::unexpected(d.error());
+      if (use_axis) off_table += mask_off_table(*d, unit, *depth_K, color_from_depth, *cal->axis);
       scan = depth_to_scan(*d, unit, *depth_K, color_from_depth);
       p.viewpoint = color_from_depth.translation().cast<float>();
     } else if (!f.points.empty()) {
@@ -129,6 +138,7 @@ Result<RegistrationInput> load_session_views(const Session& s, const Calibration
     scans.push_back(std::move(scan));
     per.push_back(p);
   }
+  if (off_table) in.notes.push_back(std::to_string(off_table) + " depth samples off the turntable (background) left out");
   if (in.views.size() < 2) return fail("session '" + s.root.string() + "' has fewer than two frames with depth or points");
   if (auto st = prepare_all(scans, per, in); !st) return std::unexpected(st.error());
   return in;

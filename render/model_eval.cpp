@@ -340,31 +340,43 @@ Result<Report> run_eval_job(const EvalJob& job) {
   return rep;
 }
 
-Result<FrameTiming> time_orbit(const fs::path& model_dir, const DrawOptions& draw, int width, int height, int frames) {
+Result<std::vector<FrameTiming>> time_orbit(const fs::path& model_dir, const std::vector<DrawOptions>& draws, int width,
+                                            int height, int frames) {
   if (frames < 1) return fail("time_orbit: at least one frame");
   auto r = open_model(model_dir);
   if (!r) return std::unexpected(r.error());
   auto fb = Framebuffer::create(width, height);
   if (!fb) return std::unexpected(fb.error());
-  // One frame unmeasured: shader compilation and texture residency.
-  if (auto st = r->renderer->draw(default_orbit_view(r->model, width, height), draw, *fb); !st) return std::unexpected(st.error());
-  std::vector<double> ms;
-  double drawn = 0;
+  // One frame each unmeasured: shader compilation and texture residency.
+  for (const auto& d : draws)
+    if (auto st = r->renderer->draw(default_orbit_view(r->model, width, height), d, *fb); !st) return std::unexpected(st.error());
+  std::vector<FrameTiming> out(draws.size());
+  std::vector<double> drawn(draws.size(), 0);
   for (int i = 0; i < frames; ++i) {
     const ViewCamera v = default_orbit_view(r->model, width, height, 2 * std::numbers::pi * i / frames);
-    auto st = r->renderer->draw(v, draw, *fb);
-    if (!st) return std::unexpected(st.error());
-    ms.push_back(st->frame_ms);
-    drawn += double(st->selection.drawn);
+    for (size_t k = 0; k < draws.size(); ++k) {
+      auto st = r->renderer->draw(v, draws[k], *fb);
+      if (!st) return std::unexpected(st.error());
+      out[k].frame_ms.push_back(st->frame_ms);
+      drawn[k] += double(st->selection.drawn);
+    }
   }
-  FrameTiming t;
-  double sum = 0;
-  for (double x : ms) sum += x;
-  t.mean_ms = sum / frames;
-  t.median_ms = median(ms);
-  t.facets_drawn_mean = drawn / frames;
-  t.renderer = r->context->describe();
-  return t;
+  for (size_t k = 0; k < draws.size(); ++k) {
+    FrameTiming& t = out[k];
+    double sum = 0;
+    for (double x : t.frame_ms) sum += x;
+    t.mean_ms = sum / frames;
+    t.median_ms = median(t.frame_ms);
+    t.facets_drawn_mean = drawn[k] / frames;
+    t.renderer = r->context->describe();
+  }
+  return out;
+}
+
+Result<FrameTiming> time_orbit(const fs::path& model_dir, const DrawOptions& draw, int width, int height, int frames) {
+  auto t = time_orbit(model_dir, std::vector<DrawOptions>{draw}, width, height, frames);
+  if (!t) return std::unexpected(t.error());
+  return std::move(t->front());
 }
 
 }  // namespace s2r

@@ -80,9 +80,15 @@ Result<Report> run_eval_job(const EvalJob& job);
 struct FrameTiming {
   double mean_ms = 0, median_ms = 0;
   double facets_drawn_mean = 0;
+  std::vector<double> frame_ms;  // per orbit frame
   std::string renderer;
 };
 Result<FrameTiming> time_orbit(const std::filesystem::path& model, const DrawOptions& draw, int width, int height,
                                int frames);
+// Several settings on one loaded model, interleaved: every orbit frame is
+// drawn with each setting in turn, so a burst of other load on a shared
+// machine hits them alike and per-frame ratios between settings stay fair.
+Result<std::vector<FrameTiming>> time_orbit(const std::filesystem::path& model, const std::vector<DrawOptions>& draws,
+                                            int width, int height, int frames);
 
 }  // namespace s2r
