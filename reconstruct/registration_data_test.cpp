@@ -6,9 +6,14 @@
 // file's own), the other scans to the same or flagged.
 #include <gtest/gtest.h>
 
+#include <unistd.h>
+
 #include <cstdio>
 #include <filesystem>
+#include <numbers>
 
+#include "calibrate/table_markers.h"
+#include "capture/import_datasets.h"
 #include "core/progress.h"
 #include "reconstruct/registration.h"
 #include "reconstruct/registration_input.h"
@@ -81,4 +86,46 @@ TEST(StanfordRegistration, PerturbedBunnyReturnsToTheConfPoses) {
     std::printf("seed %d: rms %.3f mm, %d iterations, %d rounds, %.1f s; %s\n", int(seed), 1e3 * r->rms_m,
                 r->iterations, r->rounds, r->seconds, r->slide.description.c_str());
   }
+}
+
+// The real RealSense bear (../shared/data): no poses come with it. The
+// turntable's dot markers give the axis and every frame's angle (s2r
+// calibrate markers); registering all views from there (depth off the table
+// left out) moves no frame by more than 2.5 deg about the axis and flags
+// none: the markers and the geometry agree.
+TEST(BearRegistration, MarkerAnglesAndRegistrationAgree) {
+  const fs::path data = fs::path(S2R_DATA_DIR) / "realsense_d435_bear" / "bear";
+  if (!fs::exists(data)) GTEST_SKIP() << "real data not found";
+  set_progress_enabled(false);
+  const fs::path dir = fs::temp_directory_path() / ("s2r_bear_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  ASSERT_TRUE(import_dataset("realsense", data, dir / "session", {}));
+  auto rep = run_markers_job(dir / "session", dir / "cal.json");
+  ASSERT_TRUE(rep) << rep.error().message;
+  auto cal = load_calibration(dir / "cal.json");
+  ASSERT_TRUE(cal) << cal.error().message;
+  const auto& a = *cal->axis;
+  ASSERT_EQ(a.frame_angles_deg.size(), 8u);
+  EXPECT_LT(a.rms_m, 0.002);                     // dots agree within their pixel size
+  EXPECT_GT(a.table_radius_m, 0.08);
+  EXPECT_LT(a.table_radius_m, 0.3);
+  EXPECT_GT(-a.direction_camera.y(), 0.7);       // up in the image, the camera looking down
+  auto s = load_session(dir / "session");
+  ASSERT_TRUE(s);
+  auto in = load_session_views(*s, &*cal, {});
+  ASSERT_TRUE(in) << in.error().message;
+  RegistrationOptions o;
+  o.progress = false;
+  auto r = register_views(in->views, o);
+  ASSERT_TRUE(r) << r.error().message;
+  for (size_t i = 0; i < r->poses.size(); ++i) {
+    // The registered pose against the marker pose, as a rotation.
+    const Eigen::AngleAxisd d((r->poses[i] * in->views[i].initial.inverse()).rotation());
+    std::printf("bear frame %zu: marker %.2f deg, registration moves it %.2f deg, rms %.2f mm\n", i,
+                a.frame_angles_deg[i], d.angle() * 180 / std::numbers::pi, 1e3 * r->views[i].rms_m);
+    EXPECT_LT(d.angle() * 180 / std::numbers::pi, 2.5) << i;
+    EXPECT_FALSE(r->views[i].flagged) << i << ": " << r->views[i].note;
+  }
+  EXPECT_LT(r->rms_m, 0.0012);
+  fs::remove_all(dir);
 }
