@@ -66,7 +66,7 @@ void add_draw_options(CLI::App* sub, DrawArgs& a) {
       ->check(CLI::PositiveNumber)->capture_default_str();
   sub->add_option("--lod-texel", a.lod_texel, "T_e: texel misplacement bound of a coarse billboard on screen (pixels)")
       ->check(CLI::PositiveNumber)->capture_default_str();
-  sub->add_option("--gaze", a.gaze, "visual-field LOD (with --lod) around a gaze point: 'centre' or X,Y in pixels; "
+  sub->add_option("--gaze", a.gaze, "visual-field LOD around a gaze point (turns --lod on): 'centre' or X,Y in pixels; "
                   "coarser in the periphery, nothing outside the field");
 }
 
@@ -97,6 +97,7 @@ std::optional<std::vector<double>> numbers(const std::string& text, size_t count
 bool apply_gaze(const DrawArgs& a, DrawOptions& d, std::string* why) {
   if (a.gaze.empty()) return true;
   d.lod.field = true;
+  d.lod.enabled = true;  // the field scales the octree LOD's thresholds
   if (a.gaze == "centre" || a.gaze == "center") return true;
   auto g = numbers(a.gaze, 2);
   if (!g) {
