@@ -52,7 +52,7 @@ struct SelectionOptions {
   // renormalised (each costs a full texel lookup per fragment); the colour
   // can then change by at most this share of the cameras' disagreement when
   // one crosses it. 0: keep every camera of the best k. At 0.1, s2r bench
-  // render measured 17-20 % less frame time and +0.07..+0.19 dB held-out
+  // render measured 3-20 % less frame time and +0.07..+0.19 dB held-out
   // PSNR on the rig (far cameras with small weights mostly add blur).
   double min_weight = 0.1;
   int threads = 0;
