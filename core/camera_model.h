@@ -7,6 +7,7 @@
 #pragma once
 
 #include <array>
+#include <cmath>
 #include <optional>
 #include <string>
 
@@ -51,5 +52,11 @@ struct Intrinsics {
 // Rotation about a unit axis through a point: the turntable's motion.
 Eigen::Isometry3d rotation_about_axis(const Eigen::Vector3d& axis_dir,
                                       const Eigen::Vector3d& axis_point, double angle_rad);
+
+// The angle between two directions of any length, in [0, pi]: atan2 of |a x b|
+// and a . b, exact near 0 and pi where acos of the normalised dot loses it.
+inline double angle_between(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+  return std::atan2(a.cross(b).norm(), a.dot(b));
+}
 
 }  // namespace s2r

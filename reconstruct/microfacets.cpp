@@ -35,7 +35,7 @@ CameraSpacing camera_spacing(const std::vector<Eigen::Isometry3d>& cams, const E
   for (size_t i = 0; i < dirs.size(); ++i) {
     double best = std::numbers::pi;  // a lone camera: any view may be opposite
     for (size_t j = 0; j < dirs.size(); ++j)
-      if (i != j) best = std::min(best, std::atan2(dirs[i].cross(dirs[j]).norm(), dirs[i].dot(dirs[j])));
+      if (i != j) best = std::min(best, angle_between(dirs[i], dirs[j]));
     gaps.push_back(best);
   }
   auto median = [](std::vector<double> v) {

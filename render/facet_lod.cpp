@@ -22,10 +22,6 @@ constexpr double kConeMargin = 10 * kPi / 180;
 
 Eigen::Vector3f vec(const float* p) { return {p[0], p[1], p[2]}; }
 
-double angle_between(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
-  return std::atan2(a.cross(b).norm(), a.dot(b));  // exact at 0 and pi, unlike acos
-}
-
 }  // namespace
 
 struct FacetHierarchy::Frame {

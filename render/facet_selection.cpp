@@ -110,8 +110,7 @@ SelectionStats select_facets(const FacetSet& set, const std::vector<ModelCamera>
       for (uint32_t j = 0; j < f.camera_count; ++j) {
         const uint32_t ci = set.facet_cameras[f.first_camera + j];
         const Eigen::Vector3d to_cam = (centres[ci] - c).normalized();
-        // atan2 of |cross| and dot: accurate at 0 and pi, unlike acos.
-        const double angle = std::atan2(to_cam.cross(to_eye).norm(), to_cam.dot(to_eye));
+        const double angle = angle_between(to_cam, to_eye);
         cams.emplace_back(angle, int(ci));
       }
       const int keep = std::min<int>(k + 1, int(cams.size()));
