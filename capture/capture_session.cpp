@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <limits>
+#include <optional>
 
 #include "core/progress.h"
 
@@ -60,7 +61,7 @@ Result<Report> run_capture(CaptureDevices& dev, const CaptureOptions& o, const s
     if (auto st = dev.depth->start(); !st) return std::unexpected(st.error());
 
   double worst_angle = 0, sum_dt = 0;
-  int written = 0, dropped = 0;
+  int written = 0, dropped = 0, paired = 0, clock_mismatches = 0;
   Progress progress("capture", static_cast<size_t>(o.steps));
   progress.tick(static_cast<size_t>(writer->next_index()));
   for (int i = writer->next_index(); i < o.steps; ++i) {
@@ -81,17 +82,27 @@ Result<Report> run_capture(CaptureDevices& dev, const CaptureOptions& o, const s
     dropped += static_cast<int>(color->dropped_before);
     std::optional<CapturedFrame> depth;
     if (dev.depth) {
-      int64_t best = std::numeric_limits<int64_t>::max();
+      double best = std::numeric_limits<double>::infinity();
+      std::optional<CapturedFrame> last;
       for (int k = 0; k < std::max(1, o.depth_frames); ++k) {
         auto d = dev.depth->grab();
         if (!d) return std::unexpected(with_context(d.error(), at + "depth camera"));
-        const int64_t dt = std::llabs(d->timestamp_ns - color->timestamp_ns);
-        if (dt < best) {
+        // In double: a clock that jumped must not overflow the difference.
+        const double dt = std::abs(double(d->timestamp_ns) - double(color->timestamp_ns)) * 1e-9;
+        if (dt <= o.max_pair_dt_s && dt < best) {
           best = dt;
           depth = std::move(*d);
+        } else {
+          last = std::move(*d);
         }
       }
-      sum_dt += double(best) * 1e-6;
+      if (depth) {
+        sum_dt += best * 1e3;
+        ++paired;
+      } else {
+        depth = std::move(last);
+        ++clock_mismatches;
+      }
     }
     Frame f;
     f.index = i;
@@ -112,7 +123,8 @@ Result<Report> run_capture(CaptureDevices& dev, const CaptureOptions& o, const s
   rep.counts["frames_written"] = written;
   rep.counts["camera_frames_dropped"] = dropped;
   rep.errors["max_table_angle_error_deg"] = worst_angle;
-  if (dev.depth && written) rep.errors["mean_depth_color_dt_ms"] = sum_dt / written;
+  if (dev.depth) rep.counts["depth_clock_mismatches"] = clock_mismatches;
+  if (dev.depth && paired) rep.errors["mean_depth_color_dt_ms"] = sum_dt / paired;
   return rep;
 }
 

@@ -24,6 +24,11 @@ struct CaptureOptions {
   bool resume = false;
   int flush_frames = 2;   // colour frames dropped after each move (stale buffers)
   int depth_frames = 3;   // depth frames grabbed; the nearest in time to colour is kept
+  // Colour and depth timestamps further apart than this cannot come from one
+  // clock (one jumped, or the devices use different clocks): the last depth
+  // frame is kept, the frame counted (depth_clock_mismatches) and left out
+  // of mean_depth_color_dt_ms.
+  double max_pair_dt_s = 1.0;
   bool fast_writes = true;  // uncompressed PNG: keeps up with 30 fps at 1280x720 on one core
 };
 

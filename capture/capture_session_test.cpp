@@ -7,6 +7,7 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <cmath>
 #include <set>
 
 #include "capture/capture_devices.h"
@@ -120,6 +121,88 @@ TEST_F(CaptureTest, DiskFullThenResume) {
   r = capture({}, 6, true);
   ASSERT_TRUE(r) << r.error().message;
   expect_complete(6);
+}
+
+// The fault-injection matrix (docs/testing.md, "Capture faults"): each fault
+// at each stage ends in a clear error naming frame and stage, or is absorbed
+// and counted; a resume then completes the session and nothing is lost.
+TEST_F(CaptureTest, DepthCameraVanishingThenResume) {
+  SimOptions sim;
+  sim.depth_faults.vanish_at = 4;
+  auto r = capture(sim, 6, false);
+  ASSERT_FALSE(r);
+  EXPECT_NE(r.error().message.find("depth camera"), std::string::npos) << r.error().message;
+  EXPECT_NE(r.error().message.find("disconnected"), std::string::npos) << r.error().message;
+  r = capture({}, 6, true);
+  ASSERT_TRUE(r) << r.error().message;
+  expect_complete(6);
+}
+
+TEST_F(CaptureTest, CameraIoErrorThenResume) {
+  for (bool depth : {false, true}) {
+    SimOptions sim;
+    (depth ? sim.depth_faults : sim.color_faults).eio_at = 2;
+    auto r = capture(sim, 4, false);
+    ASSERT_FALSE(r);
+    EXPECT_NE(r.error().message.find(depth ? "depth camera" : "colour camera"), std::string::npos) << r.error().message;
+    r = capture({}, 4, true);
+    ASSERT_TRUE(r) << r.error().message;
+    expect_complete(4);
+    fs::remove_all(dir_);
+  }
+}
+
+TEST_F(CaptureTest, CorruptedFramesAreSkippedNotStored) {
+  for (bool depth : {false, true}) {
+    SimOptions sim;
+    (depth ? sim.depth_faults : sim.color_faults).corrupt_at = 1;
+    auto r = capture(sim, 4, false);
+    ASSERT_TRUE(r) << r.error().message;
+    expect_complete(4);
+    fs::remove_all(dir_);
+  }
+}
+
+TEST_F(CaptureTest, ClockJumpKeepsEveryFrameAndIsCounted) {
+  for (int64_t jump : {int64_t(3600) * 1'000'000'000, int64_t(-3600) * 1'000'000'000}) {
+    SimOptions sim;
+    sim.color_faults.clock_jump_at = 2;  // the colour camera's clock jumps by an hour
+    sim.color_faults.clock_jump_ns = jump;
+    auto r = capture(sim, 6, false);
+    ASSERT_TRUE(r) << r.error().message;
+    expect_complete(6);
+    EXPECT_GE(r->counts.at("depth_clock_mismatches"), 3);  // frames 2.. cannot be paired by time
+    EXPECT_LE(r->counts.at("depth_clock_mismatches"), 5);
+    EXPECT_TRUE(std::isfinite(r->errors.at("mean_depth_color_dt_ms")));
+    EXPECT_LT(r->errors.at("mean_depth_color_dt_ms"), 1000.0);  // only the frames one clock explains
+    fs::remove_all(dir_);
+  }
+}
+
+TEST_F(CaptureTest, WriteFaultsOnImagesJournalAndHeaderThenResume) {
+  struct Case { const char* file; int err; const char* says; };
+  for (const Case c : {Case{"0002.png", EIO, "Input/output error"}, Case{"session.journal", ENOSPC, "No space left"},
+                       Case{"session.journal", EIO, "Input/output error"}}) {
+    set_write_fault_hook([&](const fs::path& p) { return p.filename() == c.file ? c.err : 0; });
+    auto r = capture({}, 4, false);
+    ASSERT_FALSE(r) << c.file;
+    EXPECT_NE(r.error().message.find(c.says), std::string::npos) << r.error().message;
+    set_write_fault_hook(nullptr);
+    r = capture({}, 4, true);
+    ASSERT_TRUE(r) << c.file << ": " << r.error().message;
+    expect_complete(4);
+    fs::remove_all(dir_);
+  }
+  // The header of a new session cannot be written: nothing is created, a plain rerun works.
+  set_write_fault_hook([](const fs::path& p) { return p.filename() == "session.json" ? ENOSPC : 0; });
+  auto r = capture({}, 4, false);
+  ASSERT_FALSE(r);
+  EXPECT_NE(r.error().message.find("No space left"), std::string::npos) << r.error().message;
+  set_write_fault_hook(nullptr);
+  EXPECT_FALSE(fs::exists(dir_ / "s" / "session.json"));
+  r = capture({}, 4, false);
+  ASSERT_TRUE(r) << r.error().message;
+  expect_complete(4);
 }
 
 TEST_F(CaptureTest, InterruptStopsBetweenFramesThenResume) {

@@ -12,6 +12,7 @@ namespace s2r {
 using namespace std::chrono_literals;
 
 std::string grbl_error_meaning(int code) {
+  if (code < 0) return "unreadable error code";
   switch (code) {
     case 1: return "G-code words consist of a letter and a value; letter was not found";
     case 2: return "numeric value format is not valid or missing an expected value";
@@ -27,6 +28,7 @@ std::string grbl_error_meaning(int code) {
 }
 
 std::string grbl_alarm_meaning(int code) {
+  if (code < 0) return "unreadable alarm code";
   switch (code) {
     case 1: return "hard limit triggered; position is likely lost, re-home";
     case 2: return "soft limit: motion target exceeds machine travel";
@@ -92,32 +94,57 @@ Status GrblTurntable::wait_banner(std::chrono::milliseconds timeout) {
     if (left.count() <= 0) return fail("timed out waiting for the banner");
     auto line = port_.read_line(left);
     if (!line) return std::unexpected(line.error());
-    if (line->rfind("Grbl", 0) == 0) {
-      banner_ = *line;
+    if (const GrblReply r = classify_grbl_reply(*line); r.kind == GrblReply::kBanner) {
+      banner_ = r.text;
       return {};
     }
   }
 }
 
-Status GrblTurntable::check_async(const std::string& line) {
-  if (line.rfind("ALARM:", 0) == 0) {
-    const int code = std::atoi(line.c_str() + 6);
-    return fail("turntable alarm " + std::to_string(code) + ": " + grbl_alarm_meaning(code));
-  }
-  if (line.rfind("Grbl", 0) == 0)
-    return fail("turntable reset itself (" + line + "): its position is lost; check power and cabling, "
+Status GrblTurntable::check_async(const GrblReply& r) {
+  if (r.kind == GrblReply::kAlarm)
+    return fail("turntable alarm " + std::to_string(r.code) + ": " + grbl_alarm_meaning(r.code));
+  if (r.kind == GrblReply::kBanner)
+    return fail("turntable reset itself (" + r.text + "): its position is lost; check power and cabling, "
                 "then resume (the table is re-homed at the current position)");
   return {};
 }
 
 namespace {
-// Line noise glued to the front of a reply ("~#ok", "#<Idle|...>") is dropped.
-std::string clean(const std::string& line) {
-  size_t i = 0;
-  while (i < line.size() && !std::isalnum(static_cast<unsigned char>(line[i])) && line[i] != '<' && line[i] != '[') ++i;
-  return line.substr(i);
+// "error:9" -> 9; -1 unless 1 to 4 digits follow the prefix.
+int reply_code(const std::string& text, size_t prefix) {
+  const size_t n = text.size() - prefix;
+  if (n < 1 || n > 4) return -1;
+  int code = 0;
+  for (size_t i = prefix; i < text.size(); ++i) {
+    if (!std::isdigit(static_cast<unsigned char>(text[i]))) return -1;
+    code = code * 10 + (text[i] - '0');
+  }
+  return code;
 }
 }  // namespace
+
+GrblReply classify_grbl_reply(const std::string& line, char axis) {
+  GrblReply r;
+  size_t i = 0;
+  while (i < line.size() && !std::isalnum(static_cast<unsigned char>(line[i])) && line[i] != '<' && line[i] != '[') ++i;
+  r.text = line.substr(i);
+  if (r.text == "ok") {
+    r.kind = GrblReply::kOk;
+  } else if (r.text.rfind("error:", 0) == 0) {
+    r.kind = GrblReply::kError;
+    r.code = reply_code(r.text, 6);
+  } else if (r.text.rfind("ALARM:", 0) == 0) {
+    r.kind = GrblReply::kAlarm;
+    r.code = reply_code(r.text, 6);
+  } else if (r.text.rfind("Grbl", 0) == 0) {
+    r.kind = GrblReply::kBanner;
+  } else if (auto st = parse_grbl_status(r.text, axis)) {
+    r.kind = GrblReply::kStatus;
+    r.status = *st;
+  }
+  return r;
+}
 
 Status GrblTurntable::command(const std::string& cmd) {
   if (auto st = port_.write(cmd + "\n"); !st) return st;
@@ -127,13 +154,11 @@ Status GrblTurntable::command(const std::string& cmd) {
       if (port_.timed_out(line.error())) return fail("no reply to '" + cmd + "' (lost ok?)");
       return std::unexpected(line.error());
     }
-    *line = clean(*line);
-    if (*line == "ok") return {};
-    if (line->rfind("error:", 0) == 0) {
-      const int code = std::atoi(line->c_str() + 6);
-      return fail("turntable rejected '" + cmd + "': error:" + std::to_string(code) + " (" + grbl_error_meaning(code) + ")");
-    }
-    if (auto st = check_async(*line); !st) return st;
+    const GrblReply r = classify_grbl_reply(*line, opt_.axis[0]);
+    if (r.kind == GrblReply::kOk) return {};
+    if (r.kind == GrblReply::kError)
+      return fail("turntable rejected '" + cmd + "': " + r.text + " (" + grbl_error_meaning(r.code) + ")");
+    if (auto st = check_async(r); !st) return st;
     // "[MSG:...]", status reports, echoes and noise: keep waiting.
   }
 }
@@ -153,9 +178,9 @@ Result<GrblStatus> GrblTurntable::status() {
         timed_out = true;
         break;
       }
-      *line = clean(*line);
-      if (auto st = check_async(*line); !st) return std::unexpected(st.error());
-      if (auto s = parse_grbl_status(*line, opt_.axis[0])) return *s;
+      const GrblReply r = classify_grbl_reply(*line, opt_.axis[0]);
+      if (auto st = check_async(r); !st) return std::unexpected(st.error());
+      if (r.kind == GrblReply::kStatus) return r.status;
     }
     if (++unanswered > opt_.retries)
       return fail("turntable on '" + port_.path() + "' is silent: " + std::to_string(unanswered) +

@@ -44,6 +44,16 @@ struct GrblStatus {
 
 // "<Idle|MPos:15.000,0.000,0.000|FS:0,0>" -> state and the axis position.
 std::optional<GrblStatus> parse_grbl_status(const std::string& line, char axis = 'X');
+
+// What one line from the board says. Line noise glued to its front ("~#ok")
+// is dropped first; anything else ("[MSG:..]", echoes, noise) is kOther.
+struct GrblReply {
+  enum Kind { kOk, kError, kAlarm, kBanner, kStatus, kOther } kind = kOther;
+  int code = -1;       // error:N / ALARM:N; -1 where N is not a number of at most 4 digits
+  GrblStatus status;   // kStatus
+  std::string text;    // the line without the leading noise
+};
+GrblReply classify_grbl_reply(const std::string& line, char axis = 'X');
 std::string grbl_error_meaning(int code);
 std::string grbl_alarm_meaning(int code);
 
@@ -61,7 +71,7 @@ class GrblTurntable : public Turntable {
   GrblTurntable(SerialPort port, GrblOptions o) : port_(std::move(port)), opt_(std::move(o)) {}
   Status wait_banner(std::chrono::milliseconds timeout);
   Status command(const std::string& line);  // waits for ok / error / alarm
-  Status check_async(const std::string& line);  // ALARM / reset / error lines at any time
+  Status check_async(const GrblReply& reply);  // ALARM / reset lines at any time
   SerialPort port_;
   GrblOptions opt_;
   std::string banner_;

@@ -7,6 +7,7 @@
 
 #include "capture/grbl_sim.h"
 #include "capture/grbl_turntable.h"
+#include "capture/serial_port.h"
 
 namespace s2r {
 namespace {
@@ -50,6 +51,38 @@ TEST(GrblStatus, Parses) {
   EXPECT_FALSE(parse_grbl_status("<Idle|WPos:1,2,3>"));
   EXPECT_FALSE(parse_grbl_status("ok"));
   EXPECT_FALSE(parse_grbl_status("<Idle|MPos:x,1,2>"));
+}
+
+TEST(GrblReply, ClassifiesWhatTheBoardSays) {
+  EXPECT_EQ(classify_grbl_reply("~#ok").kind, GrblReply::kOk);  // noise glued to the front
+  auto r = classify_grbl_reply("error:9");
+  EXPECT_EQ(r.kind, GrblReply::kError);
+  EXPECT_EQ(r.code, 9);
+  r = classify_grbl_reply("ALARM:99999999999999999999");  // no overflow: unreadable
+  EXPECT_EQ(r.kind, GrblReply::kAlarm);
+  EXPECT_EQ(r.code, -1);
+  EXPECT_EQ(classify_grbl_reply("error:").code, -1);
+  EXPECT_EQ(classify_grbl_reply("Grbl 1.1h ['$' for help]").kind, GrblReply::kBanner);
+  r = classify_grbl_reply("#<Run|MPos:1.5,0,0>");
+  EXPECT_EQ(r.kind, GrblReply::kStatus);
+  EXPECT_DOUBLE_EQ(r.status.position, 1.5);
+  EXPECT_EQ(classify_grbl_reply("[MSG:Caution: Unlocked]").kind, GrblReply::kOther);
+}
+
+TEST(LineSplitter, EndingsNoiseChunksAndRunawayLines) {
+  LineSplitter lines(8);
+  lines.feed("ok\r");
+  lines.feed("\nerr\x01or:1\rab");  // "\r\n" split across reads; a control byte dropped
+  lines.feed("c\n");
+  EXPECT_EQ(lines.next(), "ok");
+  EXPECT_EQ(lines.next(), "error:1");
+  EXPECT_EQ(lines.next(), "abc");
+  EXPECT_FALSE(lines.next());
+  lines.feed(std::string(20, 'x'));  // no terminator: cut at 8 bytes, memory bounded
+  EXPECT_EQ(lines.next(), std::string(8, 'x'));
+  EXPECT_EQ(lines.next(), std::string(8, 'x'));
+  EXPECT_FALSE(lines.next());
+  EXPECT_EQ(lines.cut_lines(), 2u);
 }
 
 TEST(GrblTurntable, HomesMovesAndReportsPosition) {

@@ -58,7 +58,7 @@ SerialPort::SerialPort(SerialPort&& o) noexcept { *this = std::move(o); }
 SerialPort& SerialPort::operator=(SerialPort&& o) noexcept {
   std::swap(fd_, o.fd_);
   std::swap(path_, o.path_);
-  std::swap(pending_, o.pending_);
+  std::swap(lines_, o.lines_);
   std::swap(tap_, o.tap_);
   return *this;
 }
@@ -92,13 +92,9 @@ Status SerialPort::write(std::string_view bytes) {
 Result<std::string> SerialPort::read_line(std::chrono::milliseconds timeout) {
   const auto deadline = std::chrono::steady_clock::now() + timeout;
   for (;;) {
-    const size_t nl = pending_.find('\n');
-    if (nl != std::string::npos) {
-      std::string line = pending_.substr(0, nl);
-      pending_.erase(0, nl + 1);
-      if (!line.empty() && line.back() == '\r') line.pop_back();
-      if (tap_) tap_('<', line);
-      return line;
+    if (auto line = lines_.next()) {
+      if (tap_) tap_('<', *line);
+      return std::move(*line);
     }
     const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
     if (left.count() <= 0) return fail("'" + path_ + "': timed out waiting for a reply");
@@ -120,21 +116,49 @@ Result<std::string> SerialPort::read_line(std::chrono::milliseconds timeout) {
       return fail(errno_message(path_, errno));
     }
     if (n == 0) return fail(errno_message(path_, EIO));
-    for (ssize_t i = 0; i < n; ++i) {
-      const unsigned char c = static_cast<unsigned char>(buf[i]);
-      if (c == '\n' || c == '\r' || (c >= 0x20 && c < 0x7f)) pending_.push_back(static_cast<char>(c));
-    }
-    // A bare '\r' ends a line too: normalise it.
-    for (size_t i = 0; i < pending_.size(); ++i)
-      if (pending_[i] == '\r' && (i + 1 >= pending_.size() || pending_[i + 1] != '\n')) {
-        if (i + 1 < pending_.size()) pending_[i] = '\n';
-      }
+    lines_.feed(std::string_view(buf, static_cast<size_t>(n)));
   }
+}
+
+void LineSplitter::feed(std::string_view bytes) {
+  for (const char ch : bytes) {
+    const unsigned char c = static_cast<unsigned char>(ch);
+    if (c == '\n' && after_cr_) {  // the second half of "\r\n"
+      after_cr_ = false;
+      continue;
+    }
+    after_cr_ = c == '\r';
+    if (c == '\n' || c == '\r') {
+      lines_.push_back(std::move(partial_));
+      partial_.clear();
+      continue;
+    }
+    if (c < 0x20 || c >= 0x7f) continue;
+    if (partial_.size() >= max_line_) {
+      lines_.push_back(std::move(partial_));
+      partial_.clear();
+      ++cut_;
+    }
+    partial_.push_back(ch);
+  }
+}
+
+std::optional<std::string> LineSplitter::next() {
+  if (lines_.empty()) return std::nullopt;
+  std::string line = std::move(lines_.front());
+  lines_.pop_front();
+  return line;
+}
+
+void LineSplitter::clear() {
+  partial_.clear();
+  lines_.clear();
+  after_cr_ = false;
 }
 
 void SerialPort::flush() {
   tcflush(fd_, TCIOFLUSH);
-  pending_.clear();
+  lines_.clear();
 }
 
 }  // namespace s2r

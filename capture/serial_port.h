@@ -3,12 +3,36 @@
 #pragma once
 
 #include <chrono>
+#include <cstddef>
+#include <deque>
 #include <functional>
+#include <optional>
 #include <string>
+#include <string_view>
 
 #include "core/result.h"
 
 namespace s2r {
+
+// Splits a serial byte stream into lines. "\r\n", "\n" and a lone "\r" each
+// end a line; bytes that are not printable ASCII are dropped (line noise). A
+// line longer than `max_line` bytes is cut there and counted, so a device that
+// never sends a terminator cannot grow memory.
+class LineSplitter {
+ public:
+  explicit LineSplitter(size_t max_line = 1024) : max_line_(max_line > 0 ? max_line : 1) {}
+  void feed(std::string_view bytes);
+  std::optional<std::string> next();  // the oldest complete line, if any
+  void clear();
+  size_t cut_lines() const { return cut_; }
+
+ private:
+  size_t max_line_;
+  std::string partial_;
+  std::deque<std::string> lines_;
+  bool after_cr_ = false;
+  size_t cut_ = 0;
+};
 
 class SerialPort {
  public:
@@ -37,7 +61,7 @@ class SerialPort {
   SerialPort() = default;
   int fd_ = -1;
   std::string path_;
-  std::string pending_;  // bytes read past the last line
+  LineSplitter lines_;
   Tap tap_;
 };
 

@@ -2,6 +2,8 @@
 
 #include <linux/videodev2.h>
 
+#include <cstdlib>
+
 #include <algorithm>
 #include <cerrno>
 #include <cstring>
@@ -183,7 +185,10 @@ Result<CapturedFrame> V4l2Camera::grab() {
     CapturedFrame f;
     f.fourcc = fourcc_;
     f.sequence = b.sequence;
-    f.timestamp_ns = int64_t(b.timestamp.tv_sec) * 1'000'000'000 + int64_t(b.timestamp.tv_usec) * 1000;
+    // A timestamp beyond +-290 years (a broken device or recording) would
+    // overflow nanoseconds: it is kept as 0, "unknown".
+    if (std::abs(int64_t(b.timestamp.tv_sec)) < int64_t(9'000'000'000) && b.timestamp.tv_usec >= 0 && b.timestamp.tv_usec < 1'000'000)
+      f.timestamp_ns = int64_t(b.timestamp.tv_sec) * 1'000'000'000 + int64_t(b.timestamp.tv_usec) * 1000;
     if (last_sequence_ >= 0 && b.sequence > last_sequence_ + 1)
       f.dropped_before = static_cast<uint32_t>(b.sequence - last_sequence_ - 1);
     last_sequence_ = b.sequence;

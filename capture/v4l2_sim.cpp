@@ -102,6 +102,10 @@ class SimIo : public V4l2Io {
       vanished_ = true;
       return -ENODEV;
     }
+    if (delivered_ == F.eio_at && !eio_done_) {
+      eio_done_ = true;
+      return -EIO;
+    }
     if (delivered_ == F.eagain_storm_at && eagains_ < F.eagain_count) {
       ++eagains_;
       return -EAGAIN;
@@ -111,6 +115,7 @@ class SimIo : public V4l2Io {
     queued_.pop_front();
     if (delivered_ == F.drop_frame_at) ++sequence_;  // the device lost one
     SimFrame f = cfg_.source(sequence_);
+    if (F.clock_jump_at >= 0 && delivered_ >= F.clock_jump_at) f.timestamp_ns += F.clock_jump_ns;
     std::string bytes;
     if (fourcc_ == kFourccYUYV) bytes = rgb_to_yuyv(f.rgb);
     else if (fourcc_ == kFourccMJPG) bytes = rgb_to_mjpeg(f.rgb);
@@ -140,7 +145,7 @@ class SimIo : public V4l2Io {
   size_t frame_bytes_ = 0;
   std::vector<std::vector<char>> buffers_;
   std::deque<uint32_t> queued_;
-  bool streaming_ = false, vanished_ = false;
+  bool streaming_ = false, vanished_ = false, eio_done_ = false;
   int delivered_ = 0, eagains_ = 0, polls_ = 0;
   uint32_t sequence_ = 0;
 };

@@ -28,6 +28,9 @@ struct V4l2SimFaults {
   int corrupt_at = -1;        // the n-th frame carries V4L2_BUF_FLAG_ERROR
   int vanish_at = -1;         // from the n-th frame on: ENODEV (unplugged)
   int timeout_at = -1;        // the n-th poll times out
+  int eio_at = -1;            // the n-th frame's DQBUF fails with EIO (a USB transfer error), once
+  int clock_jump_at = -1;     // from the n-th frame on, timestamps are shifted by clock_jump_ns
+  int64_t clock_jump_ns = 0;
 };
 
 struct V4l2SimConfig {

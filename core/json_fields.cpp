@@ -130,6 +130,8 @@ Result<nlohmann::json> parse_json_file(const std::filesystem::path& path) {
   } catch (const nlohmann::json::parse_error& e) {
     return fail(path.string() + ": not valid JSON (truncated or corrupt?) at byte " +
                 std::to_string(e.byte) + ": " + e.what());
+  } catch (const nlohmann::json::exception& e) {  // e.g. a number beyond double's range
+    return fail(path.string() + ": not valid JSON: " + e.what());
   }
 }
 

@@ -4,7 +4,11 @@
 #include <pcl/io/ply_io.h>
 #include <pcl/point_types.h>
 
+#include <algorithm>
 #include <cmath>
+#include <fstream>
+#include <string>
+#include <vector>
 
 #include "core/atomic_file.h"
 #include "core/mesh.h"
@@ -43,14 +47,78 @@ Status check_exists(const fs::path& path) {
   if (fs::file_size(path, ec) == 0) return fail("'" + path.string() + "': PLY file is empty");
   return {};
 }
+
+// PCL's PLY reader asserts (aborts) on some malformed header lines, e.g. an
+// obj_info line without exactly three words. The header is checked against
+// the PLY grammar first: printable words separated by single spaces, the
+// keywords PCL knows with their word counts, "end_header" within 64 KiB.
+Status check_ply_header(const fs::path& path) {
+  const std::string at = "'" + path.string() + "': ";
+  std::ifstream in(path, std::ios::binary);
+  std::string head(64 * 1024, '\0');
+  in.read(head.data(), static_cast<std::streamsize>(head.size()));
+  head.resize(static_cast<size_t>(in.gcount()));
+  size_t pos = 0;
+  for (int n = 1;; ++n) {
+    const size_t nl = head.find('\n', pos);
+    if (nl == std::string::npos) return fail(at + "PLY header has no end_header line in its first 64 KiB");
+    std::string line = head.substr(pos, nl - pos);
+    pos = nl + 1;
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    const std::string where = at + "PLY header line " + std::to_string(n) + ": ";
+    if (n == 1) {
+      if (line != "ply") return fail(at + "not a PLY file (first line is not 'ply')");
+      continue;
+    }
+    if (line == "end_header") return {};
+    std::vector<std::string> words;
+    for (size_t i = 0; i <= line.size();) {
+      const size_t sp = std::min(line.find(' ', i), line.size());
+      words.push_back(line.substr(i, sp - i));
+      i = sp + 1;
+    }
+    const std::string& key = words[0];
+    if (key == "comment") continue;
+    for (char c : line)
+      if (c < 0x20 || c >= 0x7f) return fail(where + "not printable text");
+    for (const auto& w : words)
+      if (w.empty()) return fail(where + "words must be separated by single spaces");
+    const size_t k = words.size();
+    const bool ok = (key == "format" && k == 3) || (key == "obj_info" && k == 3) || (key == "element" && k == 3) ||
+                    (key == "property" && (k == 3 || (k == 5 && words[1] == "list")));
+    if (!ok) return fail(where + "'" + line.substr(0, 60) + "' is not a PLY header line");
+  }
+}
+
+// PCL's conversion to typed points trusts the blob the reader made of the
+// header; check it first: vertices present, x/y/z present, every property
+// inside the vertex record, and as many bytes as the header promises.
+Status check_vertices(const pcl::PCLPointCloud2& b, const fs::path& path) {
+  const std::string at = "'" + path.string() + "': ";
+  const uint64_t n = uint64_t(b.width) * b.height;
+  if (n == 0) return fail(at + "PLY has no vertices");
+  for (const char* axis : {"x", "y", "z"})
+    if (std::none_of(b.fields.begin(), b.fields.end(), [&](const pcl::PCLPointField& f) { return f.name == axis; }))
+      return fail(at + "PLY vertices have no '" + axis + "' property");
+  for (const auto& f : b.fields) {
+    const uint64_t size = uint64_t(pcl::getFieldSize(f.datatype)) * std::max<uint32_t>(f.count, 1);
+    if (size == 0 || f.offset + size > b.point_step)
+      return fail(at + "PLY property '" + f.name + "' lies outside the vertex record");
+  }
+  if (b.row_step != uint64_t(b.width) * b.point_step || b.data.size() < n * b.point_step)
+    return fail(at + "PLY vertex data is shorter than its header says (truncated?)");
+  return {};
+}
 }  // namespace
 
 Result<Mesh> read_ply_mesh(const fs::path& path) {
   if (auto st = check_exists(path); !st) return std::unexpected(st.error());
+  if (auto st = check_ply_header(path); !st) return std::unexpected(st.error());
   pcl::PolygonMesh pm;
   pcl::PLYReader reader;
   if (reader.read(path.string(), pm) < 0)
     return fail("'" + path.string() + "': cannot parse PLY (truncated or corrupt?)");
+  if (auto st = check_vertices(pm.cloud, path); !st) return std::unexpected(st.error());
   pcl::PointCloud<pcl::PointXYZ> cloud;
   pcl::fromPCLPointCloud2(pm.cloud, cloud);
   Mesh m;
@@ -86,6 +154,7 @@ Result<Mesh> read_ply_mesh(const fs::path& path) {
 
 Result<PointScan> read_ply_points(const fs::path& path) {
   if (auto st = check_exists(path); !st) return std::unexpected(st.error());
+  if (auto st = check_ply_header(path); !st) return std::unexpected(st.error());
   pcl::PCLPointCloud2 blob;
   pcl::PLYReader reader;
   Eigen::Vector4f origin;
@@ -93,6 +162,7 @@ Result<PointScan> read_ply_points(const fs::path& path) {
   int version = 0;
   if (reader.read(path.string(), blob, origin, orientation, version) < 0)
     return fail("'" + path.string() + "': cannot parse PLY (truncated or corrupt?)");
+  if (auto st = check_vertices(blob, path); !st) return std::unexpected(st.error());
   pcl::PointCloud<pcl::PointXYZ> cloud;
   pcl::fromPCLPointCloud2(blob, cloud);
   PointScan scan;

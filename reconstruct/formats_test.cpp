@@ -53,6 +53,17 @@ TEST(PosesFile, RoundTripAndValidation) {
   fs::remove(path);
 }
 
+// A number beyond double's range made nlohmann::json throw out_of_range, which
+// escaped every loader (found by fuzz/fuzz_poses.cpp).
+TEST(PosesFile, NumberOverflowIsAClearError) {
+  const fs::path path = temp("overflow.json");
+  ASSERT_TRUE(write_file_atomic(path, R"({"format": "s2r.poses", "version": 1, "rms_m": -3.5e705})"));
+  auto e = load_poses(path);
+  ASSERT_FALSE(e);
+  EXPECT_NE(e.error().message.find("not valid JSON"), std::string::npos) << e.error().message;
+  fs::remove(path);
+}
+
 class ModelFiles : public ::testing::Test {
  protected:
   void SetUp() override {

@@ -1,0 +1,85 @@
+// PLY loading: what PCL's reader would abort on or trust blindly is a clear
+// error (inputs found by fuzz/fuzz_ply.cpp), and a mesh survives a round trip.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+
+#include "core/mesh.h"
+
+namespace s2r {
+namespace {
+namespace fs = std::filesystem;
+
+fs::path write_temp(const std::string& name, const std::string& bytes) {
+  const fs::path p = fs::temp_directory_path() / ("s2r_ply_" + std::to_string(getpid()) + "_" + name);
+  std::ofstream(p, std::ios::binary) << bytes;
+  return p;
+}
+
+std::string error_of(const fs::path& p) {
+  auto points = read_ply_points(p);
+  auto mesh = read_ply_mesh(p);
+  EXPECT_FALSE(points) << p;
+  EXPECT_FALSE(mesh) << p;
+  fs::remove(p);
+  return points ? std::string() : points.error().message;
+}
+
+const std::string kAscii = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                           "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+                           "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
+
+TEST(PlyLoad, ValidAsciiTriangle) {
+  const auto p = write_temp("ok.ply", kAscii);
+  auto mesh = read_ply_mesh(p);
+  ASSERT_TRUE(mesh) << mesh.error().message;
+  EXPECT_EQ(mesh->vertices.size(), 3u);
+  EXPECT_EQ(mesh->faces.size(), 1u);
+  auto points = read_ply_points(p);
+  ASSERT_TRUE(points) << points.error().message;
+  EXPECT_EQ(points->points.size(), 3u);
+  fs::remove(p);
+}
+
+TEST(PlyLoad, MalformedHeaderLinesAreErrorsNotAborts) {
+  // PCL asserts on an obj_info line that is not three words.
+  std::string s = kAscii;
+  s.insert(s.find("element"), "obj_info is_mesh 0 extra\n");
+  EXPECT_NE(error_of(write_temp("objinfo.ply", s)).find("is not a PLY header line"), std::string::npos);
+  s = kAscii;
+  s.insert(s.find("element"), "obj_info\tnum_cols 4\n");
+  EXPECT_NE(error_of(write_temp("tab.ply", s)).find("not printable"), std::string::npos);
+  s = kAscii;
+  s.replace(s.find("end_header"), 10, "end_headr");
+  EXPECT_NE(error_of(write_temp("typo.ply", s)).find("'end_headr' is not a PLY header line"), std::string::npos);
+  EXPECT_NE(error_of(write_temp("noend.ply", "ply\nformat ascii 1.0\nelement vertex 3\n")).find("no end_header"),
+            std::string::npos);
+  EXPECT_NE(error_of(write_temp("notply.ply", "solid cube\n")).find("not a PLY file"), std::string::npos);
+}
+
+TEST(PlyLoad, VerticesWithoutCoordinatesOrDataAreErrors) {
+  // PCL's conversion to points would bind a reference to element 0 of an empty cloud.
+  std::string s = kAscii;
+  s.replace(s.find("property float z"), 16, "property float w");
+  EXPECT_NE(error_of(write_temp("noz.ply", s)).find("no 'z' property"), std::string::npos);
+  s = "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\nend_header\n";
+  EXPECT_FALSE(error_of(write_temp("empty.ply", s)).empty());
+}
+
+TEST(PlyLoad, RoundTrip) {
+  Mesh m;
+  m.vertices = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+  m.faces = {{0, 2, 1}, {0, 1, 3}, {0, 3, 2}, {1, 2, 3}};
+  const fs::path p = fs::temp_directory_path() / ("s2r_ply_rt_" + std::to_string(getpid()) + ".ply");
+  ASSERT_TRUE(write_ply_mesh(p, m));
+  auto back = read_ply_mesh(p);
+  ASSERT_TRUE(back) << back.error().message;
+  EXPECT_EQ(back->vertices.size(), 4u);
+  EXPECT_EQ(back->faces.size(), 4u);
+  fs::remove(p);
+}
+
+}  // namespace
+}  // namespace s2r
