@@ -215,6 +215,7 @@ std::string frame_file_name(int index, const char* ext) {
 Result<Session> load_session(const fs::path& dir, SessionLoadOptions opts) {
   std::error_code ec;
   if (!fs::is_directory(dir, ec)) return fail("'" + dir.string() + "': session folder not found");
+  if (auto st = check_links_inside(dir); !st) return std::unexpected(st.error());
   auto j = parse_json_file(dir / "session.json");
   if (!j) return std::unexpected(j.error());
   try {
@@ -262,6 +263,8 @@ Result<SessionWriter> SessionWriter::create(Session header) {
 
 Result<SessionWriter> SessionWriter::resume(const fs::path& dir) {
   // Temporaries of writes a kill interrupted are never part of the session.
+  // Links are checked first: nothing outside the folder is deleted or written.
+  if (auto st = check_links_inside(dir); !st) return std::unexpected(with_context(st.error(), "cannot resume"));
   std::error_code ec;
   for (const char* sub : {"", "color", "depth", "points"})
     for (const auto& e : fs::directory_iterator(dir / sub, ec))

@@ -5,6 +5,7 @@
 #include <sstream>
 
 #include "core/atomic_file.h"
+#include "core/paths.h"
 
 namespace s2r {
 namespace fs = std::filesystem;
@@ -34,9 +35,8 @@ Result<StanfordConf> read_stanford_conf(const fs::path& path) {
       if (!(quat.norm() > 0.99 && quat.norm() < 1.01) || !Eigen::Vector3d(t[0], t[1], t[2]).allFinite())
         return fail(path.string() + ": line " + std::to_string(lineno) +
                     ": quaternion is not unit length or translation is not finite");
-      if (s.file.find("..") != std::string::npos || fs::path(s.file).is_absolute())
-        return fail(path.string() + ": line " + std::to_string(lineno) + ": scan file '" + s.file +
-                    "' is outside the .conf's folder");
+      if (auto inside = resolve_inside(path.has_parent_path() ? path.parent_path() : fs::path("."), s.file); !inside)
+        return fail(path.string() + ": line " + std::to_string(lineno) + ": scan file: " + inside.error().message);
       s.as_read = quat.normalized();
       s.world_from_scan.linear() = conf_rotation(s.as_read);
       s.world_from_scan.translation() = Eigen::Vector3d(t[0], t[1], t[2]);

@@ -24,6 +24,23 @@ Result<fs::path> resolve_inside(const fs::path& root, std::string_view relative)
   return base / rel;
 }
 
+Status check_links_inside(const fs::path& root, size_t max_entries) {
+  std::error_code ec;
+  const fs::path base = fs::weakly_canonical(root, ec);
+  if (ec) return fail("cannot resolve folder '" + root.string() + "': " + ec.message());
+  size_t n = 0;
+  for (fs::recursive_directory_iterator it(base, fs::directory_options::none, ec), end; !ec && it != end; it.increment(ec)) {
+    if (++n > max_entries) return fail("'" + root.string() + "' holds more than " + std::to_string(max_entries) + " entries");
+    if (!it->is_symlink(ec)) continue;
+    const fs::path rel = it->path().lexically_relative(base);
+    if (auto p = resolve_inside(base, rel.string()); !p)
+      return fail("'" + (root / rel).string() + "' is a symbolic link to outside the folder ('" +
+                  fs::read_symlink(it->path(), ec).string() + "'); only links inside it are allowed");
+  }
+  if (ec) return fail("cannot list '" + root.string() + "': " + ec.message());
+  return {};
+}
+
 fs::path data_dir() {
   if (const char* env = std::getenv("S2R_DATA"); env && *env) return env;
 #ifdef S2R_DEFAULT_DATA_DIR

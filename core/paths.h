@@ -14,6 +14,12 @@ namespace s2r {
 Result<std::filesystem::path> resolve_inside(const std::filesystem::path& root,
                                              std::string_view relative);
 
+// Every symbolic link under `root` (not followed) must resolve inside it: a
+// session or model folder cannot send a reader (or a resumed writer) outside
+// through a link planted anywhere in it, e.g. ground_truth -> /etc. The
+// error names the first link that leaves. `max_entries` bounds the walk.
+Status check_links_inside(const std::filesystem::path& root, size_t max_entries = 1'000'000);
+
 // Where the real data sets live: $S2R_DATA, else the build-time default.
 std::filesystem::path data_dir();
 

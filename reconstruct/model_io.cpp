@@ -98,6 +98,7 @@ Status save_model(const fs::path& dir, const Model& m) {
 }
 
 Result<Model> load_model(const fs::path& dir) {
+  if (auto st = check_links_inside(dir); !st) return std::unexpected(st.error());
   auto j = parse_json_file(dir / "model.json");
   if (!j) return std::unexpected(j.error());
   Model m;
@@ -134,9 +135,12 @@ Result<Model> load_model(const fs::path& dir) {
     FieldReader pay = doc.at("payloads");
     const uint64_t nf = static_cast<uint64_t>(pay.at("facets").integer("records"));
     const uint64_t nc = static_cast<uint64_t>(pay.at("facet_cameras").integer("records"));
-    if (doc.has("patch_mesh")) m.patch_mesh = doc.string("patch_mesh");
-    if (doc.has("surface_mesh")) m.surface_mesh = doc.string("surface_mesh");
-    if (doc.has("environment")) m.environment = doc.string("environment");
+    for (auto [key, field] : {std::pair{"patch_mesh", &m.patch_mesh}, std::pair{"surface_mesh", &m.surface_mesh},
+                              std::pair{"environment", &m.environment}}) {
+      if (!doc.has(key)) continue;
+      *field = doc.string(key);
+      if (auto p = resolve_inside(dir, **field); !p) doc.error(key, p.error().message);
+    }
     auto facets = unpack<FacetRecord>(dir / "facets.bin", nf);
     if (!facets) return std::unexpected(facets.error());
     auto fc = unpack<uint32_t>(dir / "facet_cameras.bin", nc);
