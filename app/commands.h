@@ -22,6 +22,7 @@ void add_data_commands(CLI::App& app);    // synth, import, devices, capture, ca
 void add_reconstruct_commands(CLI::App& app);  // register, reconstruct
 void add_render_commands(CLI::App& app);  // preview, render, eval, view, raytrace, envmap
 void add_bench_commands(CLI::App& app);   // bench
+void add_summary_command(CLI::App& app);  // summary
 
 // Print the report's brief line and write it to `path` (or OUT/report.json).
 int finish(const Report& report, const std::filesystem::path& path);

@@ -81,6 +81,7 @@ int main(int argc, char** argv) {
   add_reconstruct_commands(app);
   add_render_commands(app);
   add_bench_commands(app);
+  add_summary_command(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

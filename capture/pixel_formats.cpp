@@ -19,8 +19,12 @@ std::string fourcc_name(uint32_t f) {
 bool is_depth_format(uint32_t f) { return f == kFourccZ16; }
 
 namespace {
-Status check_size(std::string_view data, int height, int stride, const char* what) {
-  if (stride <= 0 || height <= 0) return fail(std::string(what) + ": bad geometry");
+// A frame of `height` rows `stride` bytes apart, each at least `row` bytes.
+Status check_size(std::string_view data, int height, int stride, int row, const char* what) {
+  if (stride <= 0 || height <= 0 || row <= 0) return fail(std::string(what) + ": bad geometry");
+  if (stride < row)
+    return fail(std::string(what) + ": rows are " + std::to_string(stride) + " bytes apart but hold " +
+                std::to_string(row) + " bytes");
   const size_t need = static_cast<size_t>(stride) * static_cast<size_t>(height);
   if (data.size() < need)
     return fail(std::string(what) + " frame is short: " + std::to_string(data.size()) + " bytes, need " +
@@ -33,7 +37,7 @@ uint8_t clamp8(int v) { return static_cast<uint8_t>(std::clamp(v, 0, 255)); }
 Result<ImageU8> yuyv_to_rgb(std::string_view data, int w, int h, int stride) {
   if (w % 2) return fail("YUYV width must be even");
   if (!stride) stride = 2 * w;
-  if (auto st = check_size(data, h, stride, "YUYV"); !st) return std::unexpected(st.error());
+  if (auto st = check_size(data, h, stride, 2 * w, "YUYV"); !st) return std::unexpected(st.error());
   ImageU8 out(w, h, 3);
   for (int y = 0; y < h; ++y) {
     const auto* row = reinterpret_cast<const uint8_t*>(data.data()) + static_cast<size_t>(y) * stride;
@@ -68,7 +72,7 @@ Result<ImageU8> mjpeg_to_rgb(std::string_view data, int w, int h) {
 
 Result<ImageU8> grey_to_rgb(std::string_view data, int w, int h, int stride) {
   if (!stride) stride = w;
-  if (auto st = check_size(data, h, stride, "GREY"); !st) return std::unexpected(st.error());
+  if (auto st = check_size(data, h, stride, w, "GREY"); !st) return std::unexpected(st.error());
   ImageU8 out(w, h, 3);
   for (int y = 0; y < h; ++y)
     for (int x = 0; x < w; ++x)
@@ -78,7 +82,7 @@ Result<ImageU8> grey_to_rgb(std::string_view data, int w, int h, int stride) {
 
 Result<ImageU16> z16_to_depth(std::string_view data, int w, int h, int stride) {
   if (!stride) stride = 2 * w;
-  if (auto st = check_size(data, h, stride, "Z16"); !st) return std::unexpected(st.error());
+  if (auto st = check_size(data, h, stride, 2 * w, "Z16"); !st) return std::unexpected(st.error());
   ImageU16 out(w, h, 1);
   for (int y = 0; y < h; ++y) std::memcpy(&out.at(0, y), data.data() + static_cast<size_t>(y) * stride, static_cast<size_t>(w) * 2);
   return out;

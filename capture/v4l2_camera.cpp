@@ -83,6 +83,15 @@ Result<std::unique_ptr<V4l2Camera>> V4l2Camera::open(std::unique_ptr<V4l2Io> io,
   if (int r = cam->io_->ioctl(VIDIOC_S_FMT, &fmt); r < 0) return std::unexpected(cam->fail_errno("S_FMT", -r).error());
   if (fmt.fmt.pix.pixelformat != want)
     return fail(path + ": device switched the format to " + fourcc_name(fmt.fmt.pix.pixelformat));
+  // What the device says it gives is checked like any input: a size a
+  // decoder can allocate, rows at least as long as the pixels they hold.
+  const uint32_t fw = fmt.fmt.pix.width, fh = fmt.fmt.pix.height, bpl = fmt.fmt.pix.bytesperline;
+  const uint32_t bytes_per_pixel = want == kFourccGREY ? 1 : want == kFourccMJPG ? 0 : 2;
+  if (fw < 2 || fh < 1 || fw > 16384 || fh > 16384)
+    return fail(path + ": device reports a " + std::to_string(fw) + "x" + std::to_string(fh) + " frame");
+  if (bpl != 0 && (bpl < bytes_per_pixel * fw || bpl > 16 * 16384))
+    return fail(path + ": device reports " + std::to_string(bpl) + " bytes per line for " + std::to_string(fw) +
+                " pixels of " + fourcc_name(want));
   cam->fourcc_ = want;
   cam->width_ = static_cast<int>(fmt.fmt.pix.width);
   cam->height_ = static_cast<int>(fmt.fmt.pix.height);

@@ -158,6 +158,26 @@ TEST(V4l2Camera, FaultsAreClear) {
   EXPECT_NE(f.error().message.find("timed out"), std::string::npos) << f.error().message;
 }
 
+// A stride shorter than a row made the Z16 decoder read past the frame
+// (found by fuzz/fuzz_v4l2_replay.cpp; the recording is its seed now).
+TEST(PixelFormats, RowsShorterThanTheirPixelsAreErrors) {
+  const std::string data(16 * 8 * 2, '\0');
+  auto z = z16_to_depth(data, 16, 8, 1);
+  ASSERT_FALSE(z);
+  EXPECT_NE(z.error().message.find("rows are 1 bytes apart"), std::string::npos) << z.error().message;
+  EXPECT_FALSE(yuyv_to_rgb(data, 16, 8, 30));
+  EXPECT_FALSE(grey_to_rgb(data, 16, 8, 15));
+  EXPECT_TRUE(z16_to_depth(data, 16, 8, 32));
+  const fs::path seed = fs::path(S2R_SOURCE_DIR) / "fuzz" / "corpus" / "v4l2_replay" / "regression_z16_short_stride";
+  auto io = make_replay_v4l2_io(seed);
+  ASSERT_TRUE(io) << io.error().message;
+  V4l2Config cfg;
+  cfg.width = 160;
+  cfg.height = 120;
+  auto cam = V4l2Camera::open(std::move(*io), "/dev/video-test", cfg);
+  if (cam && (*cam)->start()) (void)(*cam)->grab();  // a clear error or a frame; never a read past the buffer
+}
+
 TEST(V4l2Camera, RefusesWhatItCannotUse) {
   auto cam = V4l2Camera::open(make_kernel_v4l2_io(), "/dev/video-none", small());
   ASSERT_FALSE(cam);

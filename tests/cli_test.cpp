@@ -34,6 +34,34 @@ TEST(Cli, HelpListsTheDesignSubcommands) {
     EXPECT_NE(r.out.find(sub), std::string::npos) << sub << "\n" << r.out;
 }
 
+TEST(Cli, SummaryGathersReportsPlotsAndImages) {
+  const fs::path dir = fs::temp_directory_path() / ("s2r_cli_summary_" + std::to_string(getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir / "eval");
+  fs::create_directories(dir / "session" / "color");
+  std::ofstream(dir / "session" / "session.json") << "{}";
+  std::ofstream(dir / "session" / "color" / "0000.png") << "x";  // a session's frames are inputs: left out
+  std::ofstream(dir / "eval" / "report.json")
+      << R"({"stage": "eval", "seconds": 2.5, "errors": {"psnr_db_billboards": 24.5, "psnr_db_billboards_frame_0003": 24.5},
+            "skipped": {"facets_back_facing": 10}, "counts": {}, "params": {}, "warnings": ["w <1>"]})";
+  std::ofstream(dir / "eval" / "eval.csv") << "frame,held_out,mask_pixels,psnr_db_billboards,ssim_billboards,"
+                                              "coverage_billboards,frame_ms_billboards\n3,1,100,24.5,0.9,1,12.5\n";
+  std::ofstream(dir / "broken") << "";
+  auto r = s2r("summary " + dir.string() + " --title Run");
+  ASSERT_EQ(r.code, 0) << r.out;
+  std::ifstream in(dir / "index.html");
+  const std::string html((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  EXPECT_NE(html.find("psnr_db_billboards 24.5"), std::string::npos) << html;
+  EXPECT_EQ(html.find("_frame_0003"), std::string::npos) << "per-frame copies are left out of the table";
+  EXPECT_NE(html.find("w &lt;1&gt;"), std::string::npos) << "warnings are escaped";
+  EXPECT_NE(html.find("eval/psnr_vs_frame_time.png"), std::string::npos) << html;
+  EXPECT_EQ(html.find("session/color"), std::string::npos) << "session frames are not results";
+  EXPECT_TRUE(fs::exists(dir / "eval" / "psnr_vs_frame_time.png"));
+  EXPECT_TRUE(fs::exists(dir / "index.md"));
+  EXPECT_EQ(s2r("summary " + (dir / "missing").string()).code, 1);
+  fs::remove_all(dir);
+}
+
 TEST(Cli, EnvmapBuildsChecksAndNamesBadInput) {
   const fs::path dir = fs::temp_directory_path() / ("s2r_cli_env_" + std::to_string(getpid()));
   fs::remove_all(dir);
