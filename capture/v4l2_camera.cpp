@@ -134,6 +134,14 @@ Status V4l2Camera::start() {
       stop();
       return fail_errno("QUERYBUF", -r);
     }
+    // A buffer length no frame of this size needs (a broken device or
+    // recording) is refused before anything is mapped or allocated.
+    const uint64_t frame_bytes = uint64_t(width_) * height_ * 4;
+    if (b.length == 0 || b.length > std::max<uint64_t>(64u << 20, 4 * frame_bytes)) {
+      stop();
+      return fail(path_ + ": device reports buffer " + std::to_string(i) + " of " + std::to_string(b.length) +
+                  " bytes for " + std::to_string(width_) + "x" + std::to_string(height_) + " frames");
+    }
     void* p = io_->mmap(b.length, b.m.offset);
     if (!p) {
       stop();

@@ -176,6 +176,14 @@ TEST(PixelFormats, RowsShorterThanTheirPixelsAreErrors) {
   cfg.height = 120;
   auto cam = V4l2Camera::open(std::move(*io), "/dev/video-test", cfg);
   if (cam && (*cam)->start()) (void)(*cam)->grab();  // a clear error or a frame; never a read past the buffer
+  // A recorded buffer of 2.7 GB for 160x120 frames is refused before it is allocated.
+  io = make_replay_v4l2_io(seed.parent_path() / "regression_huge_buffer");
+  ASSERT_TRUE(io) << io.error().message;
+  cam = V4l2Camera::open(std::move(*io), "/dev/video-test", cfg);
+  ASSERT_TRUE(cam) << cam.error().message;
+  auto started = (*cam)->start();
+  ASSERT_FALSE(started);
+  EXPECT_NE(started.error().message.find("device reports buffer"), std::string::npos) << started.error().message;
 }
 
 TEST(V4l2Camera, RefusesWhatItCannotUse) {
