@@ -1,7 +1,9 @@
-// The only translation unit that includes Embree for the rig.
+// The rig renders through the reference ray tracer (core/raytracer.h): the
+// same Embree tracer as `s2r raytrace`, with the rig's strands as round
+// curves, its printed patterns as procedural albedo and its lamp as a
+// directional light without shadows that turns with the lab.
 #include "capture/synth_rig.h"
 
-#include <embree3/rtcore.h>
 #include <omp.h>
 
 #include <algorithm>
@@ -14,6 +16,7 @@
 #include "core/json_fields.h"
 #include "core/paths.h"
 #include "core/progress.h"
+#include "core/raytracer.h"
 
 namespace s2r {
 namespace fs = std::filesystem;
@@ -52,12 +55,19 @@ Vector3f patch_albedo(const Vector3f& p, float cell) {
   return c * stripes;
 }
 
-struct Geometry {
-  synth::Label label;
-  synth::Texture texture;
-  const Mesh* mesh = nullptr;  // triangles
-  bool strands = false;
-};
+// Lambert with an ambient share: albedo (ambient + direct max(0, n.l)),
+// under one light of intensity kLight (RtMaterial: local = k_a base +
+// I base n.l with base = kd albedo).
+constexpr float kLight = 0.7f;
+RtMaterial lambert(float ambient, float direct) {
+  RtMaterial m;
+  const float kd = direct / kLight;
+  m.diffuse = Vector3f::Constant(kd);
+  m.ambient = ambient / kd;
+  m.specular = Vector3f::Zero();
+  m.shininess = 0;
+  return m;
+}
 
 }  // namespace
 
@@ -78,18 +88,11 @@ struct SynthRig::Impl {
   synth::Scene scene;
   Intrinsics color_K, depth_K;
   Eigen::Isometry3d color_from_depth = Eigen::Isometry3d::Identity();
-  RTCDevice device = nullptr;
-  RTCScene rtc = nullptr;
-  std::vector<Geometry> geoms;
+  std::unique_ptr<RayTracer> tracer;
   // Ray directions (camera frame, z = 1) per pixel: centre, colour sub-samples, depth neighbours.
   std::vector<Vector3f> color_centre, color_sub, depth_centre, depth_nb;
   Eigen::Isometry3d board_from_world = Eigen::Isometry3d::Identity();
   Eigen::Matrix3d world_from_board_linear = Eigen::Matrix3d::Identity();
-
-  ~Impl() {
-    if (rtc) rtcReleaseScene(rtc);
-    if (device) rtcReleaseDevice(device);
-  }
 
   double true_angle_deg(int view) const { return view * 360.0 / opt.views - view * opt.table_error_deg; }
   Eigen::Isometry3d world_from_camera(int view) const { return world_from_camera_at(true_angle_deg(view)); }
@@ -114,74 +117,71 @@ struct SynthRig::Impl {
     return Eigen::AngleAxisd(-a, Vector3d::UnitZ()) * scene.light_dir_lab;
   }
 
-  struct Hit {
-    bool hit = false;
-    float t = 0;
-    unsigned geom = 0, prim = 0;
-    float u = 0, v = 0;
-    Vector3f ng;
-  };
-
-  Hit trace(const Vector3f& org, const Vector3f& dir) const {
-    RTCIntersectContext ctx;
-    rtcInitIntersectContext(&ctx);
-    RTCRayHit rh;
-    rh.ray.org_x = org.x(); rh.ray.org_y = org.y(); rh.ray.org_z = org.z();
-    rh.ray.dir_x = dir.x(); rh.ray.dir_y = dir.y(); rh.ray.dir_z = dir.z();
-    rh.ray.tnear = 0.f;
-    rh.ray.tfar = static_cast<float>(scene.far_m);
-    rh.ray.mask = 0xFFFFFFFFu;
-    rh.ray.flags = 0;
-    rh.ray.time = 0.f;
-    rh.ray.id = 0;
-    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-    rtcIntersect1(rtc, &ctx, &rh);
-    Hit h;
-    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return h;
-    h.hit = true;
-    h.t = rh.ray.tfar;
-    h.geom = rh.hit.geomID;
-    h.prim = rh.hit.primID;
-    h.u = rh.hit.u;
-    h.v = rh.hit.v;
-    h.ng = Vector3f(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z);
-    return h;
+  std::vector<PointLight> lights_at(double angle_deg) const {
+    PointLight l;
+    l.position = light_world_at(angle_deg);
+    l.intensity = Vector3f::Constant(kLight);
+    l.directional = true;
+    l.shadows = false;
+    return {l};
   }
 
-  // Linear radiance seen along `dir` from `org`.
-  Vector3f shade(const Hit& h, const Vector3f& org, const Vector3f& dir, const Vector3f& light) const {
-    if (!h.hit) return Vector3f::Constant(0.03f);
-    const Geometry& g = geoms[h.geom];
-    const Vector3f p = org + h.t * dir;
-    Vector3f n = h.ng.normalized();
-    Vector3f albedo;
-    if (g.strands) {
-      albedo = scene.strands.colors[h.prim];
-    } else {
-      const auto& f = g.mesh->faces[h.prim];
-      const auto& N = g.mesh->normals;
-      Vector3f ns = (1 - h.u - h.v) * N[f[0]] + h.u * N[f[1]] + h.v * N[f[2]];
-      if (ns.squaredNorm() > 0) n = ns.normalized();
-      switch (g.texture) {
-        case synth::Texture::kChessboard: {
-          const Eigen::Vector3d b = board_from_world * p.cast<double>();
+  // The procedural albedo of a surface's print.
+  std::function<Vector3f(const Vector3f&, const Vector3f&)> albedo(synth::Texture texture) const {
+    switch (texture) {
+      case synth::Texture::kChessboard: {
+        const Eigen::Isometry3d bw = board_from_world;
+        const Vector3f board_z = world_from_board_linear.col(2).cast<float>();
+        const double square = scene.board_square_m;
+        const int nx = scene.board_squares_x, ny = scene.board_squares_y;
+        return [bw, board_z, square, nx, ny](const Vector3f& p, const Vector3f& dir) -> Vector3f {
+          const Eigen::Vector3d b = bw * p.cast<double>();
           // The print is on the -z side (OpenCV board frames: z points away from the camera).
-          const bool front = (world_from_board_linear.col(2).cast<float>()).dot(dir) > 0;
-          const int cx = static_cast<int>(std::floor(b.x() / scene.board_square_m)) + 1;
-          const int cy = static_cast<int>(std::floor(b.y() / scene.board_square_m)) + 1;
-          const bool inside = cx >= 0 && cy >= 0 && cx < scene.board_squares_x && cy < scene.board_squares_y;
-          albedo = Vector3f::Constant(front && inside && (cx + cy) % 2 == 0 ? 0.04f : 0.85f);
-          return albedo * (0.55f + 0.45f * std::max(0.f, (n.dot(dir) > 0 ? -n : n).dot(light)));
-        }
-        case synth::Texture::kPatches: albedo = patch_albedo(p, 0.012f); break;
-        case synth::Texture::kWalls: albedo = patch_albedo(p, 0.3f); break;
-        default: albedo = Vector3f(0.55f, 0.5f, 0.45f); break;
+          const bool front = board_z.dot(dir) > 0;
+          const int cx = static_cast<int>(std::floor(b.x() / square)) + 1;
+          const int cy = static_cast<int>(std::floor(b.y() / square)) + 1;
+          const bool inside = cx >= 0 && cy >= 0 && cx < nx && cy < ny;
+          return Vector3f::Constant(front && inside && (cx + cy) % 2 == 0 ? 0.04f : 0.85f);
+        };
       }
+      case synth::Texture::kPatches: return [](const Vector3f& p, const Vector3f&) { return patch_albedo(p, 0.012f); };
+      case synth::Texture::kWalls: return [](const Vector3f& p, const Vector3f&) { return patch_albedo(p, 0.3f); };
+      default: return [](const Vector3f&, const Vector3f&) { return Vector3f(0.55f, 0.5f, 0.45f); };
     }
-    if (n.dot(dir) > 0) n = -n;
-    return albedo * (0.3f + 0.7f * std::max(0.f, n.dot(light)));
   }
+
+  // The scene for the tracer: every surface and the strands, lit per frame.
+  RtScene tracer_scene() const {
+    RtScene rs;
+    rs.background = Vector3f::Constant(0.03f);
+    for (size_t i = 0; i < scene.surfaces.size(); ++i) {
+      const auto& surf = scene.surfaces[i];
+      RtObject o;
+      o.name = scene.name + " surface " + std::to_string(i);
+      o.mesh.vertices = surf.mesh.vertices;
+      o.mesh.normals = surf.mesh.normals;
+      o.mesh.levels = {surf.mesh.faces};
+      // The board is lit more softly (a matte print).
+      o.material = surf.texture == synth::Texture::kChessboard ? lambert(0.55f, 0.45f) : lambert(0.3f, 0.7f);
+      o.material.albedo = albedo(surf.texture);
+      rs.objects.push_back(std::move(o));
+    }
+    if (!scene.strands.segments.empty()) {
+      RtCurves c;
+      c.name = scene.name + " strands";
+      c.points = scene.strands.points;
+      c.segments = scene.strands.segments;
+      c.colors = scene.strands.colors;
+      c.material = lambert(0.3f, 0.7f);
+      rs.curves.push_back(std::move(c));
+    }
+    return rs;
+  }
+
+  RtHit trace(const Vector3f& org, const Vector3f& dir) const {
+    return tracer->intersect(org, dir, static_cast<float>(scene.far_m));
+  }
+  static synth::Label label(const RtHit& h) { return h.curves >= 0 ? synth::kStrand : synth::kSurface; }
 };
 
 SynthRig::SynthRig(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
@@ -235,45 +235,10 @@ Result<std::unique_ptr<SynthRig>> SynthRig::create(const SynthOptions& options) 
                   table(d, impl->depth_nb, {{-0.75, 0}, {0.75, 0}, {0, -0.75}, {0, 0.75}})})
     if (!st) return std::unexpected(st.error());
 
-  // Embree scene.
-  impl->device = rtcNewDevice(nullptr);
-  if (!impl->device) return fail("Embree: cannot create a device (error " + std::to_string(rtcGetDeviceError(nullptr)) + ")");
-  impl->rtc = rtcNewScene(impl->device);
-  rtcSetSceneBuildQuality(impl->rtc, RTC_BUILD_QUALITY_HIGH);
-  for (const auto& surf : impl->scene.surfaces) {
-    RTCGeometry g = rtcNewGeometry(impl->device, RTC_GEOMETRY_TYPE_TRIANGLE);
-    auto* vb = static_cast<float*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
-                                                           3 * sizeof(float), surf.mesh.vertices.size()));
-    auto* ib = static_cast<unsigned*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
-                                                              3 * sizeof(unsigned), surf.mesh.faces.size()));
-    for (size_t i = 0; i < surf.mesh.vertices.size(); ++i)
-      for (int k = 0; k < 3; ++k) vb[3 * i + k] = surf.mesh.vertices[i][k];
-    for (size_t i = 0; i < surf.mesh.faces.size(); ++i)
-      for (int k = 0; k < 3; ++k) ib[3 * i + k] = static_cast<unsigned>(surf.mesh.faces[i][k]);
-    rtcCommitGeometry(g);
-    unsigned id = rtcAttachGeometry(impl->rtc, g);
-    rtcReleaseGeometry(g);
-    if (impl->geoms.size() <= id) impl->geoms.resize(id + 1);
-    impl->geoms[id] = Geometry{synth::kSurface, surf.texture, &surf.mesh, false};
-  }
-  const auto& st = impl->scene.strands;
-  if (!st.segments.empty()) {
-    RTCGeometry g = rtcNewGeometry(impl->device, RTC_GEOMETRY_TYPE_ROUND_LINEAR_CURVE);
-    auto* vb = static_cast<float*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4,
-                                                           4 * sizeof(float), st.points.size()));
-    auto* ib = static_cast<unsigned*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT,
-                                                              sizeof(unsigned), st.segments.size()));
-    for (size_t i = 0; i < st.points.size(); ++i)
-      for (int k = 0; k < 4; ++k) vb[4 * i + k] = st.points[i][k];
-    std::copy(st.segments.begin(), st.segments.end(), ib);
-    rtcCommitGeometry(g);
-    unsigned id = rtcAttachGeometry(impl->rtc, g);
-    rtcReleaseGeometry(g);
-    if (impl->geoms.size() <= id) impl->geoms.resize(id + 1);
-    impl->geoms[id] = Geometry{synth::kStrand, synth::Texture::kPlain, nullptr, true};
-  }
-  rtcCommitScene(impl->rtc);
-  if (rtcGetDeviceError(impl->device) != RTC_ERROR_NONE) return fail("Embree: scene build failed");
+  // The reference tracer over the scene.
+  auto tracer = RayTracer::create(impl->tracer_scene());
+  if (!tracer) return std::unexpected(tracer.error());
+  impl->tracer = std::move(*tracer);
   return std::unique_ptr<SynthRig>(new SynthRig(std::move(impl)));
 }
 
@@ -309,7 +274,7 @@ SynthView SynthRig::render_at(double table_angle_deg, uint64_t noise_key) const 
   out.labels = ImageU8(w, h, 1);
   const Eigen::Isometry3f wc = m.world_from_camera_at(table_angle_deg).cast<float>();
   const Eigen::Isometry3f wd = (m.world_from_camera_at(table_angle_deg) * m.color_from_depth).cast<float>();
-  const Vector3f light = m.light_world_at(table_angle_deg).cast<float>();
+  const std::vector<PointLight> lights = m.lights_at(table_angle_deg);
   const float cos_grazing = static_cast<float>(std::cos(m.opt.grazing_deg * kDeg));
   const uint64_t seed = m.opt.seed;
   const int threads = m.opt.threads > 0 ? m.opt.threads : omp_get_max_threads();
@@ -323,7 +288,7 @@ SynthView SynthRig::render_at(double table_angle_deg, uint64_t noise_key) const 
       Vector3f sum = Vector3f::Zero();
       for (size_t k = 0; k < spp; ++k) {
         const Vector3f d = wc.linear() * m.color_sub[pix * spp + k];
-        sum += m.shade(m.trace(oc, d), oc, d, light);
+        sum += m.tracer->trace(oc.cast<double>(), d.cast<double>(), 1.0, 0, nullptr, &lights);
       }
       sum *= static_cast<float>(m.opt.exposure) / float(spp);
       for (int c = 0; c < 3; ++c) {
@@ -332,21 +297,21 @@ SynthView SynthRig::render_at(double table_angle_deg, uint64_t noise_key) const 
         out.color.at(x, y, c) = static_cast<uint8_t>(std::clamp(std::lround(v), 0L, 255L));
       }
       const auto gc = m.trace(oc, wc.linear() * m.color_centre[pix]);
-      out.gt_depth_color.at(x, y) = gc.hit ? gc.t : 0.f;
+      out.gt_depth_color.at(x, y) = gc.found ? gc.t : 0.f;
 
       // Depth camera: exact z, label, then the sensor model.
       const Vector3f od = wd.translation();
       const Vector3f dc = wd.linear() * m.depth_centre[pix];
       const auto hc = m.trace(od, dc);
-      if (!hc.hit) continue;
+      if (!hc.found) continue;
       out.gt_depth.at(x, y) = hc.t;
-      out.labels.at(x, y) = m.geoms[hc.geom].label;
+      out.labels.at(x, y) = Impl::label(hc);
       bool hole = false;
       for (int k = 0; k < 4 && !hole; ++k) {
         const auto hn = m.trace(od, wd.linear() * m.depth_nb[pix * 4 + k]);
-        hole = !hn.hit || std::abs(hn.t - hc.t) > 0.02f * hc.t;
+        hole = !hn.found || std::abs(hn.t - hc.t) > 0.02f * hc.t;
       }
-      const float cos_inc = std::abs(hc.ng.normalized().dot(dc.normalized()));
+      const float cos_inc = std::abs(hc.normal.dot(dc.normalized()));
       hole = hole || cos_inc < cos_grazing;
       hole = hole || (m.opt.dropout > 0 && uniform(hash(seed, uint64_t(view), pix, 200)) < m.opt.dropout);
       if (hole) continue;

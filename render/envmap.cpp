@@ -16,27 +16,6 @@
 namespace s2r {
 namespace fs = std::filesystem;
 
-double envmap_exponent(double radius, int size, double levels) {
-  const double r = std::clamp(radius, 0.0, 1.0);
-  if (r == 0) return 0;
-  // x: tan of the angle between neighbouring voxels at this radius. g decays
-  // only as 1 / log(1 / r): where x^2 would overflow, log1p(x^2) = 2 log x.
-  const double log_x = std::log(2.0) - std::log(r) - std::log(static_cast<double>(size));
-  if (log_x > 100) return std::log(levels) / log_x;
-  const double x = std::exp(log_x);
-  return 2 * std::log(levels) / std::log1p(x * x);
-}
-
-double envmap_radius(double exponent, int size, double levels) {
-  if (!(exponent > 0)) return 0;
-  if (exponent >= envmap_exponent(1, size, levels)) return 1;
-  const double x2 = std::expm1(2 * std::log(levels) / exponent);  // (2 / (|t| s))^2
-  if (!std::isfinite(x2)) return 0;
-  return std::clamp(2 / (size * std::sqrt(x2)), 0.0, 1.0);
-}
-
-double roughness_to_exponent(double roughness) { return envmap_exponent(1 - std::clamp(roughness, 0.0, 1.0), 128, 256); }
-
 namespace {
 
 constexpr int kFormatVersion = 1;

@@ -33,7 +33,7 @@
 #include "render/envmap.h"
 #include "render/framebuffer.h"
 #include "render/material_lod.h"
-#include "render/raytracer.h"
+#include "core/raytracer.h"
 
 namespace s2r {
 

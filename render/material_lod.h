@@ -27,7 +27,7 @@
 #include "core/image.h"
 #include "core/result.h"
 #include "render/framebuffer.h"
-#include "render/raytracer.h"
+#include "core/raytracer.h"
 
 namespace s2r {
 

@@ -23,7 +23,7 @@
 #include "core/mesh.h"
 #include "core/report.h"
 #include "core/result.h"
-#include "render/raytracer.h"
+#include "core/raytracer.h"
 
 namespace s2r {
 

@@ -12,10 +12,10 @@
 
 #include "core/image_io.h"
 #include "core/mesh.h"
-#include "render/phong_reference.h"
+#include "core/phong_reference.h"
 #include "render/raytrace_job.h"
-#include "render/raytracer.h"
-#include "render/visual_field.h"
+#include "core/raytracer.h"
+#include "core/visual_field.h"
 
 namespace s2r {
 namespace {

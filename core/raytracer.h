@@ -3,7 +3,7 @@
 // Phong materials over textured or vertex-coloured meshes, multithreaded over
 // tiles; and the seed's visual-field level of detail per primary ray.
 //
-// Level of detail, per primary ray (render/visual_field.h gives the level):
+// Level of detail, per primary ray (core/visual_field.h gives the level):
 //   - level 0: not traced, the pixel gets the background;
 //   - reflections and refractions allowed: floor(level * reflect_max);
 //     secondary and shadow rays inherit the primary ray's level; a branch
@@ -23,6 +23,11 @@
 // (Waechter and Binder, Ray Tracing Gems ch. 6), which stays correct at any
 // scene scale, so there is no scale-dependent epsilon.
 //
+// The same tracer is the reference renderer: the synthetic rig
+// (capture/synth_rig.cpp) renders its ground-truth colour and depth through
+// it, with round curves for the fuzzy object's strands, procedural albedo for
+// its printed textures and a directional light without shadows.
+//
 // Shading: local = ambient k_a kd + sum over unshadowed lights of
 // I (kd max(0, n.l) + ks max(0, r.v)^s), computed as exp(s log(r.v)). The
 // pixel is (1 - k_r - k_t - k_g) local + k_r R + k_t T + k_g G, G the
@@ -33,6 +38,9 @@
 #pragma once
 
 #include <array>
+#include <cstdint>
+#include <functional>
+#include <limits>
 #include <memory>
 #include <string>
 #include <vector>
@@ -42,8 +50,8 @@
 
 #include "core/image.h"
 #include "core/result.h"
-#include "render/phong_reference.h"
-#include "render/visual_field.h"
+#include "core/phong_reference.h"
+#include "core/visual_field.h"
 
 namespace s2r {
 
@@ -60,8 +68,11 @@ struct RtMaterial {
   int texture = -1;                            // RtScene::textures index (needs uvs)
   // Per-pixel roughness for the glossy lobe: RtScene::textures index, the first
   // channel / 255 (bilinear, like `texture`); the exponent at each hit is then
-  // roughness_to_exponent(roughness) (render/envmap.h) instead of glossy_exponent.
+  // roughness_to_exponent(roughness) (core/phong_reference.h) instead of glossy_exponent.
   int roughness_texture = -1;
+  // Optional procedural colour (a printed pattern): called at every hit with
+  // the world point and the ray's unit direction; multiplies kd like a texture.
+  std::function<Eigen::Vector3f(const Eigen::Vector3f& p, const Eigen::Vector3f& dir)> albedo;
 };
 
 // A triangle mesh with its levels of detail: index buffers into one vertex
@@ -92,13 +103,39 @@ struct RtObject {
   Eigen::Isometry3d world_from_object = Eigen::Isometry3d::Identity();
 };
 
+// Round linear curves (strands, fibres): segment s joins points[s] and
+// points[s + 1], each point x, y, z (world) and radius. Shaded with the
+// curve's surface normal at the hit; kd times the segment's colour.
+struct RtCurves {
+  std::string name;
+  std::vector<Eigen::Vector4f> points;
+  std::vector<uint32_t> segments;
+  std::vector<Eigen::Vector3f> colors;  // per segment, linear 0..1; empty: white
+  RtMaterial material;                  // no texture maps (curves have no uvs)
+
+  Status validate() const;
+};
+
 struct PointLight {
-  Eigen::Vector3d position = Eigen::Vector3d::Zero();
+  Eigen::Vector3d position = Eigen::Vector3d::Zero();  // directional: the direction towards the light
   Eigen::Vector3f intensity{1, 1, 1};
+  bool directional = false;  // at infinity (sunlight, a distant lamp)
+  bool shadows = true;       // false: lights every surface facing it, occluded or not
+};
+
+// What a ray meets first (RayTracer::intersect).
+struct RtHit {
+  bool found = false;
+  float t = 0;         // along the direction as given (not normalised)
+  int object = -1;     // RtScene::objects index, or -1
+  int curves = -1;     // RtScene::curves index, or -1
+  int prim = -1;       // triangle or segment
+  Eigen::Vector3f normal = Eigen::Vector3f::Zero();  // geometric, world frame, unit
 };
 
 struct RtScene {
   std::vector<RtObject> objects;
+  std::vector<RtCurves> curves;  // one level: the same in every level of detail
   std::vector<PointLight> lights;
   Eigen::Vector3f background{0.05f, 0.06f, 0.08f};
   // Optional: rays that leave the scene see it, and glossy materials reflect
@@ -167,8 +204,14 @@ class RayTracer {
 
   TraceResult render(const Screen& screen, const Eigen::Vector3d& eye, const TraceOptions& options) const;
   // One primary ray at a given level (> 0), for tests and probes.
+  // `lights`, when given, replace the scene's for this ray (a light that
+  // moves between frames of one scene, as the rig's does relative to the
+  // turning object).
   Eigen::Vector3f trace(const Eigen::Vector3d& origin, const Eigen::Vector3d& dir, double level, int reflect_max,
-                        TraceStats* stats = nullptr) const;
+                        TraceStats* stats = nullptr, const std::vector<PointLight>* lights = nullptr) const;
+  // The first surface along origin + t dir, 0 <= t < t_far, at full detail.
+  RtHit intersect(const Eigen::Vector3f& origin, const Eigen::Vector3f& dir,
+                  float t_far = std::numeric_limits<float>::infinity()) const;
 
   // Which level each object uses for a ray of this level (eq. 10).
   std::vector<int> detail_for(double level) const;

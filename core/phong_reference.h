@@ -55,4 +55,20 @@ class Panorama {
 // `exponent` >= 0 and finite.
 Result<Eigen::Vector3d> phong_lobe(const Panorama& panorama, const Eigen::Vector3d& r, double exponent);
 
+// The multi-scale environment map's exponent law (render/envmap.h):
+// L = g(|t|) = 2 log I / log1p((2 / (|t| s))^2) for a map of s voxels per side
+// and I intensity levels.
+// g(|t|) above; radius in [0, 1] (larger radii are clamped to 1), size >= 2,
+// levels > 1.
+double envmap_exponent(double radius, int size, double intensity_levels);
+// Its inverse: the radius whose lobe has this exponent (0 for L = 0, 1 for
+// every L at or beyond g(1)).
+double envmap_radius(double exponent, int size, double intensity_levels);
+
+// The material's roughness in [0, 1] as a Phong exponent, independent of any
+// map's resolution: the exponent a 128^3, 256-level map has at lambda = 1 -
+// roughness (about 45,400 at roughness 0, 0 at roughness 1). A map of another
+// size looks it up at envmap_radius(exponent).
+double roughness_to_exponent(double roughness);
+
 }  // namespace s2r

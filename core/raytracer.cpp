@@ -1,5 +1,4 @@
-#include "render/raytracer.h"
-#include "render/envmap.h"
+#include "core/raytracer.h"
 
 #include <algorithm>
 #include <cmath>
@@ -36,6 +35,22 @@ Status RtMesh::validate(const std::string& what) const {
       if ((f.array() < 0).any() || (f.array() >= n).any())
         return fail(fmt::format("{}: level {} indexes a vertex out of range", what, k));
   }
+  return {};
+}
+
+Status RtCurves::validate() const {
+  if (points.empty() || segments.empty()) return fail("curves '" + name + "': no segments");
+  for (const auto& p : points)
+    if (!p.allFinite() || !(p.w() > 0)) return fail("curves '" + name + "': a point is not finite or its radius is not positive");
+  for (uint32_t s : segments)
+    if (static_cast<size_t>(s) + 1 >= points.size())
+      return fail(fmt::format("curves '{}': segment {} runs past the last point", name, s));
+  if (!colors.empty() && colors.size() != segments.size())
+    return fail("curves '" + name + "': colours and segments differ in count");
+  for (const auto& c : colors)
+    if (!c.allFinite()) return fail("curves '" + name + "': a colour is not finite");
+  if (material.texture >= 0 || material.roughness_texture >= 0)
+    return fail("curves '" + name + "': curves have no uvs for a texture");
   return {};
 }
 
@@ -163,10 +178,31 @@ bool same_mesh(const RtMesh& a, const RtMesh& b) {
 
 struct Hit {
   bool found = false;
-  int object = -1;
+  int object = -1;  // instance: objects first, then curves
   int prim = -1;
   float t = 0, u = 0, v = 0;
+  Vector3f ng = Vector3f::Zero();  // Embree's, in the instance's frame (curves: the world)
 };
+
+// What one material needs checked, for objects and curves alike.
+Status check_material(const std::string& what, const RtMaterial& m, const RtScene& scene, bool has_uvs) {
+  if (m.reflect < 0 || m.transmit < 0 || m.glossy < 0 || m.reflect + m.transmit + m.glossy > 1)
+    return fail(what + ": reflect, transmit and glossy must be >= 0 and sum to at most 1");
+  if (m.glossy > 0 && !scene.environment) return fail(what + ": a glossy material needs an environment");
+  if (!(m.glossy_exponent >= 0) || !std::isfinite(m.glossy_exponent))
+    return fail(what + ": glossy exponent must be finite and >= 0");
+  if (!(m.ior > 0) || !std::isfinite(m.ior)) return fail(what + ": index of refraction must be positive");
+  if (!(m.shininess >= 0) || !std::isfinite(m.shininess)) return fail(what + ": shininess must be >= 0");
+  if (!m.diffuse.allFinite() || !m.specular.allFinite() || !std::isfinite(m.ambient))
+    return fail(what + ": diffuse, specular and ambient must be finite");
+  if (m.texture >= static_cast<int>(scene.textures.size())) return fail(what + ": texture index out of range");
+  if (m.texture >= 0 && !has_uvs) return fail(what + ": a texture needs uvs");
+  if (m.roughness_texture >= static_cast<int>(scene.textures.size()) || (m.roughness_texture >= 0 && !has_uvs) ||
+      (m.roughness_texture >= 0 && scene.textures[m.roughness_texture].empty()))
+    return fail(what + ": the roughness texture must be a non-empty scene texture and the mesh needs uvs");
+  if (m.texture >= 0 && scene.textures[m.texture].empty()) return fail(what + ": empty texture");
+  return {};
+}
 
 }  // namespace
 
@@ -182,6 +218,7 @@ struct RayTracer::Impl {
   std::vector<std::vector<int>> top_detail;          // [top][object] level used
   std::array<int, kQuanta + 1> quantum_top{};        // quantum -> top scene
   std::vector<Eigen::Matrix3f> normal_from_object;
+  std::vector<RTCScene> curve_scenes;                // one per RtCurves, in every top scene
   Eigen::AlignedBox3f bounds;  // every object, slightly enlarged
   double build_seconds = 0;
 
@@ -225,6 +262,7 @@ struct RayTracer::Impl {
     for (auto s : tops) rtcReleaseScene(s);
     for (auto& v : mesh_levels)
       for (auto s : v) rtcReleaseScene(s);
+    for (auto s : curve_scenes) rtcReleaseScene(s);
     if (device) rtcReleaseDevice(device);
   }
 
@@ -241,27 +279,29 @@ struct RayTracer::Impl {
     return d;
   }
 
-  Vector3f trace_unit(const Vector3f& origin, const Vector3f& dir, float level, int reflect_max, TraceStats& st) const {
+  Vector3f trace_unit(const Vector3f& origin, const Vector3f& dir, float level, int reflect_max,
+                      const std::vector<PointLight>& lights, TraceStats& st) const {
     const int q = quantum(level);
     ++st.primary;
     ++st.rays_per_quantum[q];
     // Reflect_i = level * Reflect_max (eq. 9), whole bounces.
     const int budget = static_cast<int>(std::floor(std::clamp(level, 0.0f, 1.0f) * std::max(0, reflect_max) + 1e-6f));
-    return shade(quantum_top[q], origin, dir, 0, budget, st);
+    return shade(quantum_top[q], origin, dir, 0, budget, lights, st);
   }
 
   static int quantum(double level) {
     return std::clamp(static_cast<int>(std::ceil(level * kQuanta - 1e-9)), 1, kQuanta);
   }
 
-  Hit intersect(int top, const Vector3f& o, const Vector3f& d) const {
+  Hit intersect(int top, const Vector3f& o, const Vector3f& d,
+                float tfar = std::numeric_limits<float>::infinity()) const {
     RTCIntersectContext ctx;
     rtcInitIntersectContext(&ctx);
     RTCRayHit rh;
     rh.ray.org_x = o.x(), rh.ray.org_y = o.y(), rh.ray.org_z = o.z();
     rh.ray.dir_x = d.x(), rh.ray.dir_y = d.y(), rh.ray.dir_z = d.z();
     rh.ray.tnear = 0;
-    rh.ray.tfar = std::numeric_limits<float>::infinity();
+    rh.ray.tfar = tfar;
     rh.ray.mask = 0xffffffffu;
     rh.ray.flags = 0;
     rh.ray.time = 0;
@@ -276,6 +316,7 @@ struct RayTracer::Impl {
     h.t = rh.ray.tfar;
     h.u = rh.hit.u;
     h.v = rh.hit.v;
+    h.ng = Vector3f(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z);
     return h;
   }
 
@@ -312,47 +353,98 @@ struct RayTracer::Impl {
     return c;
   }
 
-  Vector3f shade(int top, const Vector3f& o, const Vector3f& d, int depth, int budget, TraceStats& st) const {
+  // The surface at a hit: unit geometric normal (world), shading normal,
+  // colour before lighting, material, and the uv where there is one.
+  struct Surface {
+    Vector3f ng, ns, base;
+    const RtMaterial* mat = nullptr;
+    const RtMesh* mesh = nullptr;
+    Vector3i face = Vector3i::Zero();
+    float w0 = 0;
+  };
+
+  Vector3f geometric_normal(int top, const Hit& h) const {
+    const int n_obj = static_cast<int>(scene.objects.size());
+    if (h.object >= n_obj) return h.ng.normalized();
+    const RtMesh& m = *meshes[mesh_of[h.object]];
+    const Vector3i f = m.levels[top_detail[top][h.object]][h.prim];
+    return (normal_from_object[h.object] * (m.vertices[f[1]] - m.vertices[f[0]]).cross(m.vertices[f[2]] - m.vertices[f[0]]))
+        .normalized();
+  }
+
+  Surface surface(int top, const Hit& h, const Vector3f& p, const Vector3f& d) const {
+    Surface s;
+    s.ng = geometric_normal(top, h);
+    if (!s.ng.allFinite()) s.ng = -d;
+    const Vector3f nf = d.dot(s.ng) < 0 ? s.ng : Vector3f(-s.ng);  // faces the incoming ray
+    s.ns = nf;
+    const int n_obj = static_cast<int>(scene.objects.size());
+    if (h.object >= n_obj) {
+      const RtCurves& cv = scene.curves[h.object - n_obj];
+      s.mat = &cv.material;
+      s.base = cv.colors.empty() ? s.mat->diffuse : Vector3f(s.mat->diffuse.cwiseProduct(cv.colors[h.prim]));
+    } else {
+      const RtMesh& m = *meshes[mesh_of[h.object]];
+      const Vector3i f = m.levels[top_detail[top][h.object]][h.prim];
+      s.mesh = &m;
+      s.face = f;
+      s.w0 = 1 - h.u - h.v;
+      if (!m.normals.empty()) {
+        Vector3f n = normal_from_object[h.object] * (s.w0 * m.normals[f[0]] + h.u * m.normals[f[1]] + h.v * m.normals[f[2]]);
+        if (n.squaredNorm() > 0) {
+          n.normalize();
+          s.ns = n.dot(nf) < 0 ? Vector3f(-n) : n;
+        }
+      }
+      s.mat = &scene.objects[h.object].material;
+      s.base = s.mat->diffuse;
+      if (!m.colors.empty())
+        s.base = s.base.cwiseProduct(s.w0 * m.colors[f[0]] + h.u * m.colors[f[1]] + h.v * m.colors[f[2]]);
+      if (s.mat->texture >= 0) s.base = s.base.cwiseProduct(texel(s.mat->texture, uv(s, h)));
+    }
+    if (s.mat->albedo) s.base = s.base.cwiseProduct(s.mat->albedo(p, d));
+    return s;
+  }
+
+  static Eigen::Vector2f uv(const Surface& s, const Hit& h) {
+    const auto& t = s.mesh->uvs;
+    return s.w0 * t[s.face[0]] + h.u * t[s.face[1]] + h.v * t[s.face[2]];
+  }
+
+  Vector3f shade(int top, const Vector3f& o, const Vector3f& d, int depth, int budget, const std::vector<PointLight>& lights,
+                 TraceStats& st) const {
     const Hit h = misses_bounds(o, d) ? Hit{} : intersect(top, o, d);
     if (!h.found) {
       ++st.misses;
       return scene.environment ? scene.environment->lookup(d.cast<double>()) : scene.background;
     }
-    const RtObject& obj = scene.objects[h.object];
-    const RtMesh& m = *meshes[mesh_of[h.object]];
-    const Vector3i f = m.levels[top_detail[top][h.object]][h.prim];
-    const Eigen::Matrix3f& nm = normal_from_object[h.object];
-    const float w0 = 1 - h.u - h.v;
     const Vector3f p = o + h.t * d;
-    Vector3f ng = (nm * (m.vertices[f[1]] - m.vertices[f[0]]).cross(m.vertices[f[2]] - m.vertices[f[0]])).normalized();
-    if (!ng.allFinite()) ng = -d;
+    const Surface sf = surface(top, h, p, d);
+    const Vector3f& ng = sf.ng;
+    const Vector3f& ns = sf.ns;
+    const Vector3f& base = sf.base;
+    const RtMaterial& mat = *sf.mat;
     const bool entering = d.dot(ng) < 0;
     const Vector3f nf = entering ? ng : Vector3f(-ng);  // faces the incoming ray
-    Vector3f ns = nf;
-    if (!m.normals.empty()) {
-      Vector3f n = nm * (w0 * m.normals[f[0]] + h.u * m.normals[f[1]] + h.v * m.normals[f[2]]);
-      if (n.squaredNorm() > 0) {
-        n.normalize();
-        ns = n.dot(nf) < 0 ? Vector3f(-n) : n;
-      }
-    }
-    const RtMaterial& mat = obj.material;
-    Vector3f base = mat.diffuse;
-    if (!m.colors.empty()) base = base.cwiseProduct(w0 * m.colors[f[0]] + h.u * m.colors[f[1]] + h.v * m.colors[f[2]]);
-    if (mat.texture >= 0)
-      base = base.cwiseProduct(texel(mat.texture, w0 * m.uvs[f[0]] + h.u * m.uvs[f[1]] + h.v * m.uvs[f[2]]));
 
     Vector3f local = mat.ambient * base;
     const Vector3f lifted = offset_ray_origin(p, nf);
-    for (const auto& light : scene.lights) {
-      Vector3f to_light = light.position.cast<float>() - p;
-      const float dist = to_light.norm();
-      if (!(dist > 0)) continue;
-      to_light /= dist;
+    for (const auto& light : lights) {
+      Vector3f to_light = light.position.cast<float>();
+      float dist = std::numeric_limits<float>::infinity();
+      if (!light.directional) {
+        to_light -= p;
+        dist = to_light.norm();
+      }
+      const float len = light.directional ? to_light.norm() : dist;
+      if (!(len > 0)) continue;
+      to_light /= len;
       const float ndl = ns.dot(to_light);
       if (ndl <= 0 || nf.dot(to_light) <= 0) continue;
-      ++st.shadow;
-      if (occluded(top, lifted, to_light, dist * (1 - 1e-5f))) continue;
+      if (light.shadows) {
+        ++st.shadow;
+        if (occluded(top, lifted, to_light, light.directional ? dist : dist * (1 - 1e-5f))) continue;
+      }
       Vector3f c = base * ndl;
       const Vector3f r = 2 * ndl * ns - to_light;
       const float rv = -r.dot(d);
@@ -367,7 +459,7 @@ struct RayTracer::Impl {
       const Vector3f r = (d - 2 * d.dot(ns) * ns).normalized();
       double exponent = mat.glossy_exponent;
       if (mat.roughness_texture >= 0)
-        exponent = roughness_to_exponent(texel(mat.roughness_texture, w0 * m.uvs[f[0]] + h.u * m.uvs[f[1]] + h.v * m.uvs[f[2]]).x());
+        exponent = roughness_to_exponent(texel(mat.roughness_texture, uv(sf, h)).x());
       if (auto g = phong_lobe(*scene.environment, r.cast<double>(), exponent)) out += kg * g->cast<float>();
     }
     if (kr <= 0 && kt <= 0) return out;
@@ -384,12 +476,12 @@ struct RayTracer::Impl {
       const float wr = kr + (refracts ? 0.0f : kt);
       if (wr > 0) {
         ++st.secondary;
-        reflected = shade(top, lifted, refl, depth + 1, budget, st);
+        reflected = shade(top, lifted, refl, depth + 1, budget, lights, st);
         out += wr * reflected;
       }
       if (refracts) {
         ++st.secondary;
-        out += kt * shade(top, offset_ray_origin(p, -nf), trans, depth + 1, budget, st);
+        out += kt * shade(top, offset_ray_origin(p, -nf), trans, depth + 1, budget, lights, st);
       }
     }
     return out;
@@ -407,22 +499,13 @@ Result<std::unique_ptr<RayTracer>> RayTracer::create(RtScene scene) {
       return fail(fmt::format("light {} is not finite", i));
   for (const auto& o : scene.objects) {
     if (auto st = o.mesh.validate("object '" + o.name + "'"); !st) return std::unexpected(st.error());
-    const auto& m = o.material;
-    if (m.reflect < 0 || m.transmit < 0 || m.glossy < 0 || m.reflect + m.transmit + m.glossy > 1)
-      return fail("object '" + o.name + "': reflect, transmit and glossy must be >= 0 and sum to at most 1");
-    if (m.glossy > 0 && !scene.environment) return fail("object '" + o.name + "': a glossy material needs an environment");
-    if (!(m.glossy_exponent >= 0) || !std::isfinite(m.glossy_exponent))
-      return fail("object '" + o.name + "': glossy exponent must be finite and >= 0");
-    if (!(m.ior > 0) || !std::isfinite(m.ior)) return fail("object '" + o.name + "': index of refraction must be positive");
-    if (!(m.shininess >= 0) || !std::isfinite(m.shininess)) return fail("object '" + o.name + "': shininess must be >= 0");
-    if (m.texture >= static_cast<int>(scene.textures.size()))
-      return fail("object '" + o.name + "': texture index out of range");
-    if (m.texture >= 0 && o.mesh.uvs.empty()) return fail("object '" + o.name + "': a texture needs uvs");
-    if (m.roughness_texture >= static_cast<int>(scene.textures.size()) || (m.roughness_texture >= 0 && o.mesh.uvs.empty()) ||
-        (m.roughness_texture >= 0 && scene.textures[m.roughness_texture].empty()))
-      return fail("object '" + o.name + "': the roughness texture must be a non-empty scene texture and the mesh needs uvs");
-    if (m.texture >= 0 && scene.textures[m.texture].empty()) return fail("object '" + o.name + "': empty texture");
+    if (auto st = check_material("object '" + o.name + "'", o.material, scene, !o.mesh.uvs.empty()); !st)
+      return std::unexpected(st.error());
     if (!o.world_from_object.matrix().allFinite()) return fail("object '" + o.name + "': pose is not finite");
+  }
+  for (const auto& c : scene.curves) {
+    if (auto st = c.validate(); !st) return std::unexpected(st.error());
+    if (auto st = check_material("curves '" + c.name + "'", c.material, scene, false); !st) return std::unexpected(st.error());
   }
   Stopwatch sw;
   auto impl = std::make_unique<Impl>();
@@ -464,6 +547,26 @@ Result<std::unique_ptr<RayTracer>> RayTracer::create(RtScene scene) {
     }
     I.mesh_levels.push_back(std::move(levels));
   }
+  for (const auto& c : I.scene.curves) {
+    for (const auto& p : c.points) {
+      I.bounds.extend(p.head<3>() - Vector3f::Constant(p.w()));
+      I.bounds.extend(p.head<3>() + Vector3f::Constant(p.w()));
+    }
+    RTCScene s = rtcNewScene(I.device);
+    rtcSetSceneBuildQuality(s, RTC_BUILD_QUALITY_HIGH);
+    RTCGeometry g = rtcNewGeometry(I.device, RTC_GEOMETRY_TYPE_ROUND_LINEAR_CURVE);
+    auto* vb = static_cast<float*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4,
+                                                           4 * sizeof(float), c.points.size()));
+    std::memcpy(vb, c.points.data(), c.points.size() * 4 * sizeof(float));
+    auto* ib = static_cast<unsigned*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT,
+                                                              sizeof(unsigned), c.segments.size()));
+    std::memcpy(ib, c.segments.data(), c.segments.size() * sizeof(unsigned));
+    rtcCommitGeometry(g);
+    rtcAttachGeometry(s, g);
+    rtcReleaseGeometry(g);
+    rtcCommitScene(s);
+    I.curve_scenes.push_back(s);
+  }
   const Vector3f pad = Vector3f::Constant(1e-4f * I.bounds.sizes().maxCoeff()) +
                        1e-5f * I.bounds.min().cwiseAbs().cwiseMax(I.bounds.max().cwiseAbs());
   I.bounds.min() -= pad;
@@ -483,6 +586,15 @@ Result<std::unique_ptr<RayTracer>> RayTracer::create(RtScene scene) {
         rtcAttachGeometryByID(top, inst, static_cast<unsigned>(j));
         rtcReleaseGeometry(inst);
       }
+      for (size_t c = 0; c < I.curve_scenes.size(); ++c) {
+        RTCGeometry inst = rtcNewGeometry(I.device, RTC_GEOMETRY_TYPE_INSTANCE);
+        rtcSetGeometryInstancedScene(inst, I.curve_scenes[c]);
+        const Eigen::Matrix<float, 3, 4> xfm = Eigen::Matrix<float, 3, 4>::Identity();
+        rtcSetGeometryTransform(inst, 0, RTC_FORMAT_FLOAT3X4_COLUMN_MAJOR, xfm.data());
+        rtcCommitGeometry(inst);
+        rtcAttachGeometryByID(top, inst, static_cast<unsigned>(I.scene.objects.size() + c));
+        rtcReleaseGeometry(inst);
+      }
       rtcCommitScene(top);
       it = made.emplace(detail, static_cast<int>(I.tops.size())).first;
       I.tops.push_back(top);
@@ -496,11 +608,31 @@ Result<std::unique_ptr<RayTracer>> RayTracer::create(RtScene scene) {
   return std::unique_ptr<RayTracer>(new RayTracer(std::move(impl)));
 }
 
-Vector3f RayTracer::trace(const Vector3d& origin, const Vector3d& dir, double level, int reflect_max,
-                          TraceStats* stats) const {
+Vector3f RayTracer::trace(const Vector3d& origin, const Vector3d& dir, double level, int reflect_max, TraceStats* stats,
+                          const std::vector<PointLight>* lights) const {
   TraceStats local;
   return impl_->trace_unit(origin.cast<float>(), dir.normalized().cast<float>(), static_cast<float>(level), reflect_max,
-                           stats ? *stats : local);
+                           lights ? *lights : impl_->scene.lights, stats ? *stats : local);
+}
+
+RtHit RayTracer::intersect(const Vector3f& origin, const Vector3f& dir, float t_far) const {
+  const Impl& I = *impl_;
+  const int top = I.quantum_top[kQuanta];
+  RtHit out;
+  if (I.misses_bounds(origin, dir)) return out;
+  const Hit h = I.intersect(top, origin, dir, t_far);
+  if (!h.found) return out;
+  out.found = true;
+  out.t = h.t;
+  out.prim = h.prim;
+  const int n_obj = static_cast<int>(I.scene.objects.size());
+  if (h.object < n_obj)
+    out.object = h.object;
+  else
+    out.curves = h.object - n_obj;
+  out.normal = I.geometric_normal(top, h);
+  if (!out.normal.allFinite()) out.normal = -dir.normalized();
+  return out;
 }
 
 TraceResult RayTracer::render(const Screen& screen, const Vector3d& eye, const TraceOptions& options) const {
@@ -545,7 +677,7 @@ TraceResult RayTracer::render(const Screen& screen, const Vector3d& eye, const T
             ++st.empty_tiles_pixels;
             if (impl_->scene.environment) c = impl_->scene.environment->lookup(dir.cast<double>());
           } else
-            c = impl_->trace_unit(eye_f, dir, level, options.reflect_max, st);
+            c = impl_->trace_unit(eye_f, dir, level, options.reflect_max, impl_->scene.lights, st);
         }
         for (int ch = 0; ch < 3; ++ch) r.color.at(x, y, ch) = c[ch];
       }

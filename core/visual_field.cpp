@@ -1,4 +1,4 @@
-#include "render/visual_field.h"
+#include "core/visual_field.h"
 
 #include <cmath>
 
