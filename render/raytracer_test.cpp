@@ -2,7 +2,8 @@
 // the seed's level formula at its singular and boundary points, the
 // LOD-equals-full property inside the central field, the reflection budget,
 // total internal reflection, ray offsets at large scene scales, determinism,
-// and bad scenes rejected with a clear error.
+// bad scenes rejected with a clear error; and what the rig's ground truth
+// renders with (curves, procedural albedo, directional lights, intersect).
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -131,6 +132,135 @@ RtObject sphere(const Vector3d& at, double r, RtMaterial m = {}) {
   o.world_from_object = Eigen::Translation3d(at);
   o.material = m;
   return o;
+}
+
+// What the rig's ground truth uses (capture/synth_rig.cpp): round curves,
+// procedural albedo, directional lights without shadows, per-ray lights and
+// RayTracer::intersect.
+RtMaterial matte(float ambient) {
+  RtMaterial m;
+  m.diffuse = Vector3f::Ones();
+  m.ambient = ambient;
+  m.specular = Vector3f::Zero();
+  m.shininess = 0;
+  return m;
+}
+
+TEST(RayTracer, CurvesAreHitShadedAndLabelled) {
+  RtScene s;
+  RtCurves c;
+  c.name = "strand";
+  c.points = {Eigen::Vector4f(-1, 0, -2, 0.01f), Eigen::Vector4f(1, 0, -2, 0.01f)};
+  c.segments = {0};
+  c.colors = {Vector3f(0.2f, 0.4f, 0.8f)};
+  c.material = matte(0.25f);
+  s.curves.push_back(c);
+  s.objects.push_back(quad({-5, -5, -4}, {5, -5, -4}, {5, 5, -4}, {-5, 5, -4}, matte(0.25f)));
+  s.lights.push_back({Vector3d(0, 0, 1), Vector3f::Ones(), true, false});
+  auto rt = RayTracer::create(s);
+  ASSERT_TRUE(rt.has_value()) << rt.error().message;
+  // Straight at the strand's axis: t = distance - radius, normal back at the eye.
+  const RtHit h = (*rt)->intersect({0.3f, 0, 0}, {0, 0, -1});
+  ASSERT_TRUE(h.found);
+  EXPECT_EQ(h.curves, 0);
+  EXPECT_EQ(h.object, -1);
+  EXPECT_EQ(h.prim, 0);
+  EXPECT_NEAR(h.t, 2 - 0.01f, 1e-5);
+  EXPECT_NEAR((h.normal - Vector3f(0, 0, 1)).norm(), 0, 1e-3);
+  // Lit head-on by the directional light: colour (ambient + 1), exactly.
+  const Vector3f col = (*rt)->trace({0.3, 0, 0}, {0, 0, -1}, 1, 0);
+  EXPECT_NEAR((col - 1.25f * c.colors[0]).norm(), 0, 1e-3);
+  // Just beside the strand the ray reaches the quad behind.
+  const RtHit beside = (*rt)->intersect({0.3f, 0.02f, 0}, {0, 0, -1});
+  ASSERT_TRUE(beside.found);
+  EXPECT_EQ(beside.object, 0);
+  EXPECT_EQ(beside.curves, -1);
+  EXPECT_NEAR(beside.t, 4, 1e-5);
+}
+
+TEST(RayTracer, IntersectMeasuresAlongTheGivenDirectionUpToTFar) {
+  RtScene s;
+  s.objects.push_back(quad({-5, -5, -4}, {5, -5, -4}, {5, 5, -4}, {-5, 5, -4}));
+  auto rt = RayTracer::create(s);
+  ASSERT_TRUE(rt.has_value()) << rt.error().message;
+  // A camera ray with z = -1 (the rig's tables) gives depth, not distance.
+  const RtHit h = (*rt)->intersect({0, 0, 0}, {0.5f, 0, -1});
+  ASSERT_TRUE(h.found);
+  EXPECT_NEAR(h.t, 4, 1e-5);
+  EXPECT_NEAR((*rt)->intersect({0, 0, 0}, {0, 0, -2}).t, 2, 1e-5);
+  EXPECT_FALSE((*rt)->intersect({0, 0, 0}, {0, 0, -1}, 3.9f).found);  // beyond t_far
+  EXPECT_FALSE((*rt)->intersect({0, 0, 0}, {0, 0, 1}).found);         // away from everything
+  EXPECT_FALSE((*rt)->intersect({0, 0, 0}, {1, 0, 0}).found);
+}
+
+TEST(RayTracer, DirectionalLightsWithAndWithoutShadowsAndPerRayLights) {
+  // A floor under a blocker; the sun straight above.
+  RtScene s;
+  s.objects.push_back(quad({-5, -5, 0}, {5, -5, 0}, {5, 5, 0}, {-5, 5, 0}, matte(0.2f)));
+  s.objects.push_back(box({-0.5f, -0.5f, 1}, {0.5f, 0.5f, 1.2f}, matte(0.2f)));
+  const Vector3d eye(2, 0, 3), at(0, 0, 0);
+  const Vector3d dir = at - eye;
+  auto with = [&](bool shadows) {
+    RtScene t = s;
+    t.lights.push_back({Vector3d(0, 0, 5), Vector3f::Ones(), true, shadows});
+    auto rt = RayTracer::create(t);
+    EXPECT_TRUE(rt.has_value());
+    return (*rt)->trace(eye, dir, 1, 0);
+  };
+  EXPECT_NEAR(with(true).x(), 0.2f, 1e-5);   // in the blocker's shadow: ambient only
+  EXPECT_NEAR(with(false).x(), 1.2f, 1e-5);  // shadows off: ambient + n.l = 1
+  // Per-ray lights replace the scene's: a sun at 60 deg from the normal.
+  auto rt = RayTracer::create(s);
+  ASSERT_TRUE(rt.has_value());
+  const std::vector<PointLight> tilted{{Vector3d(std::sin(kPi / 3), 0, std::cos(kPi / 3)), Vector3f::Ones(), true, false}};
+  EXPECT_NEAR((*rt)->trace(eye, dir, 1, 0, nullptr, &tilted).x(), 0.2f + 0.5f, 1e-5);
+  EXPECT_NEAR((*rt)->trace(eye, dir, 1, 0).x(), 0.2f, 1e-5);  // the scene has no lights of its own
+}
+
+TEST(RayTracer, ProceduralAlbedoSeesTheWorldPointAndTheRay) {
+  RtScene s;
+  RtMaterial m = matte(1.0f);
+  m.albedo = [](const Vector3f& p, const Vector3f& d) -> Vector3f {
+    const bool dark = (static_cast<int>(std::floor(p.x())) + static_cast<int>(std::floor(p.y()))) % 2 != 0;
+    return Vector3f::Constant(dark ? 0.1f : 0.9f) * (d.z() < 0 ? 1.0f : 0.5f);
+  };
+  s.objects.push_back(quad({-5, -5, -1}, {5, -5, -1}, {5, 5, -1}, {-5, 5, -1}, m));
+  s.objects[0].world_from_object = Eigen::Translation3d(0, 0, -1);  // the callback gets world points
+  auto rt = RayTracer::create(s);
+  ASSERT_TRUE(rt.has_value());
+  EXPECT_NEAR((*rt)->trace({0.5, 0.5, 0}, {0, 0, -1}, 1, 0).x(), 0.9f, 1e-6);
+  EXPECT_NEAR((*rt)->trace({1.5, 0.5, 0}, {0, 0, -1}, 1, 0).x(), 0.1f, 1e-6);
+  EXPECT_NEAR((*rt)->trace({0.5, 0.5, -4}, {0, 0, 1}, 1, 0).x(), 0.45f, 1e-6);  // from below
+}
+
+TEST(RayTracer, BadCurvesAreRejectedWithTheirName) {
+  auto with = [](RtCurves c) {
+    RtScene s;
+    s.objects.push_back(quad({-5, -5, -4}, {5, -5, -4}, {5, 5, -4}, {-5, 5, -4}));
+    c.name = "hair";
+    s.curves.push_back(std::move(c));
+    auto rt = RayTracer::create(s);
+    return rt ? std::string() : rt.error().message;
+  };
+  RtCurves ok;
+  ok.points = {Eigen::Vector4f(0, 0, 0, 0.1f), Eigen::Vector4f(1, 0, 0, 0.1f)};
+  ok.segments = {0};
+  EXPECT_EQ(with(ok), "");
+  RtCurves past = ok;
+  past.segments = {1};
+  EXPECT_NE(with(past).find("hair"), std::string::npos);
+  RtCurves flat = ok;
+  flat.points[1].w() = 0;
+  EXPECT_NE(with(flat).find("radius"), std::string::npos);
+  RtCurves nan = ok;
+  nan.points[0].x() = NAN;
+  EXPECT_NE(with(nan).find("not finite"), std::string::npos);
+  RtCurves colours = ok;
+  colours.colors = {Vector3f::Ones(), Vector3f::Ones()};
+  EXPECT_NE(with(colours).find("colours"), std::string::npos);
+  RtCurves textured = ok;
+  textured.material.texture = 0;
+  EXPECT_NE(with(textured).find("uvs"), std::string::npos);
 }
 
 TEST(RayTracer, ReflectionBudgetIsLevelTimesReflectMax) {
