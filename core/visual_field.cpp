@@ -2,6 +2,10 @@
 
 #include <cmath>
 
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
 #include <Eigen/Geometry>
 
 namespace s2r {
@@ -9,27 +13,41 @@ namespace {
 
 constexpr float kPiF = 3.14159265358979f;
 
+// Every formula below is written once, over Eigen arrays of N floats: N = 1
+// serves single directions, N = kFieldBatch a row of pixels in SIMD (Eigen's
+// packets; selects instead of branches). The operations are the same IEEE
+// single-precision ones in the same order, so both give the same bits.
+template <int N>
+using Lanes = Eigen::Array<float, N, 1>;
+
+// Correctly rounded square roots in every lane: Eigen's packet sqrt may take
+// the fast reciprocal-estimate path (EIGEN_FAST_MATH), a bit away from
+// std::sqrt.
+template <int N>
+Lanes<N> exact_sqrt(const Lanes<N>& x) {
+  return x.unaryExpr([](float v) { return std::sqrt(v); });
+}
+
 // atan(t) for t >= 0 (+inf allowed): Cephes' atanf, range reduction to
 // |x| <= tan(pi/8) and an odd degree-9 polynomial; about 1e-7 relative.
 // glibc's atan2 costs ~45 ns here, and the tracer asks twice per pixel.
-float atan_pos(float t) {
-  float y = 0, x = t;
-  if (t > 2.414213562373095f) {
-    y = kPiF / 2;
-    x = -1 / t;
-  } else if (t > 0.4142135623730950f) {
-    y = kPiF / 4;
-    x = (t - 1) / (t + 1);
-  }
-  const float z = x * x;
+template <int N>
+Lanes<N> atan_pos(const Lanes<N>& t) {
+  const Eigen::Array<bool, N, 1> big = t > 2.414213562373095f;
+  const Eigen::Array<bool, N, 1> mid = t > 0.4142135623730950f;
+  const Lanes<N> x = big.select(-1 / t, mid.select((t - 1) / (t + 1), t));
+  const Lanes<N> y = big.select(Lanes<N>::Constant(kPiF / 2), mid.select(Lanes<N>::Constant(kPiF / 4), Lanes<N>::Zero()));
+  const Lanes<N> z = x * x;
   return y + (((8.05374449538e-2f * z - 1.38776856032e-1f) * z + 1.99777106478e-1f) * z - 3.33329491539e-1f) * z * x + x;
 }
 
 // atan2(y, x) for y >= 0, in [0, pi]; both zero gives 0 (the sign of a zero
 // x is ignored).
-float atan2_pos(float y, float x) {
-  if (x == 0) return y == 0 ? 0.0f : kPiF / 2;
-  return x > 0 ? atan_pos(y / x) : kPiF - atan_pos(y / -x);
+template <int N>
+Lanes<N> atan2_pos(const Lanes<N>& y, const Lanes<N>& x) {
+  const Lanes<N> a = atan_pos<N>(y / x.abs());  // inf or NaN where x = 0: selected away
+  const Lanes<N> r = (x > 0).select(a, kPiF - a);
+  return (x == 0).select((y == 0).select(Lanes<N>::Zero(), Lanes<N>::Constant(kPiF / 2)), r);
 }
 
 }  // namespace
@@ -61,25 +79,45 @@ bool in_inner_cone(const Eigen::Vector3f& d, float n2) { return d.x() > 0 && d.x
 bool in_behind_cone(const Eigen::Vector3f& d) { return d.x() < 0 && std::abs(d.y()) <= -d.x() * kTanBehind; }
 
 // Eq. 4-8 in single precision (a ray tracer asks once per pixel; the angles
-// need no more than ~1e-7 rad). `d` is finite, non-zero and within float range.
+// need no more than ~1e-7 rad). Every lane finite, non-zero and within float
+// range. Fills m_a, |m_b|, l and L (L only meaningful where l > pi/6).
+template <int N>
+struct FieldLanes {
+  Lanes<N> ma, mb, l, edge, level;
+};
+
+template <int N>
+FieldLanes<N> field_lanes(const Lanes<N>& df, const Lanes<N>& dr, const Lanes<N>& du) {
+  FieldLanes<N> p;
+  p.ma = atan2_pos<N>(dr.abs(), df);         // eq. 4
+  p.mb = atan2_pos<N>(du.abs(), df.abs());   // eq. 5, |m_b|
+  const Lanes<N> l2 = p.ma * p.ma + p.mb * p.mb;
+  p.l = exact_sqrt<N>(l2);                           // eq. 6
+  const Lanes<N> b = (du >= 0).select(Lanes<N>::Constant(kUpperF), Lanes<N>::Constant(kLowerF));
+  // eq. 7 (0/0 at the gaze, where l2 = 0: that lane is central and takes level 1 below)
+  p.edge = exact_sqrt<N>((kTemporalF * kTemporalF * p.ma * p.ma + b * b * p.mb * p.mb) / l2);
+  p.level = (p.l <= kCentralF).select(Lanes<N>::Ones(),                                           // eq. 8
+                                      (p.l < p.edge).select((p.edge - p.l) / (p.edge - kCentralF), Lanes<N>::Zero()));
+  return p;
+}
+
+// The level with the two shortcut cones (visual_field.h), per lane.
+template <int N>
+Lanes<N> level_lanes(const Lanes<N>& df, const Lanes<N>& dr, const Lanes<N>& du) {
+  const Lanes<N> n2 = df * df + dr * dr + du * du;
+  const Eigen::Array<bool, N, 1> inner = (df > 0) && (df * df >= kCosInner * kCosInner * n2);
+  const Eigen::Array<bool, N, 1> behind = (df < 0) && (dr.abs() <= -df * kTanBehind);
+  return inner.select(Lanes<N>::Ones(), behind.select(Lanes<N>::Zero(), field_lanes<N>(df, dr, du).level));
+}
+
 FieldPoint field_core(const Eigen::Vector3f& d) {
+  const FieldLanes<1> f = field_lanes<1>(Lanes<1>(d.x()), Lanes<1>(d.y()), Lanes<1>(d.z()));
   FieldPoint p;
-  const float df = d.x(), dr = d.y(), du = d.z();
-  const float ma = atan2_pos(std::abs(dr), df);            // eq. 4
-  const float mb = atan2_pos(std::abs(du), std::abs(df));  // eq. 5, |m_b|
-  const float l2 = ma * ma + mb * mb;
-  const float l = std::sqrt(l2);                            // eq. 6
-  p.m_a = ma;
-  p.m_b = du < 0 ? -mb : mb;
-  p.l = l;
-  if (l <= kCentralF) {
-    p.level = 1;
-    return p;
-  }
-  const float b = du >= 0 ? kUpperF : kLowerF;
-  const float edge = std::sqrt((kTemporalF * kTemporalF * ma * ma + b * b * mb * mb) / l2);  // eq. 7
-  p.edge = edge;
-  p.level = l < edge ? (edge - l) / (edge - kCentralF) : 0.0f;  // eq. 8
+  p.m_a = f.ma(0);
+  p.m_b = d.z() < 0 ? -f.mb(0) : f.mb(0);
+  p.l = f.l(0);
+  p.edge = f.l(0) <= kCentralF ? 0.0f : f.edge(0);
+  p.level = f.level(0);
   return p;
 }
 
@@ -95,9 +133,77 @@ FieldPoint visual_field(const Eigen::Vector3d& d) {
 float field_level(const Eigen::Vector3f& d) {
   const float n2 = d.squaredNorm();
   if (!(n2 > 0) || !std::isfinite(n2)) return visual_field(d.cast<double>()).level;
-  if (in_inner_cone(d, n2)) return 1.0f;
-  if (in_behind_cone(d)) return 0.0f;
-  return static_cast<float>(field_core(d).level);
+  return level_lanes<1>(Lanes<1>(d.x()), Lanes<1>(d.y()), Lanes<1>(d.z()))(0);
+}
+
+#if defined(__SSE2__)
+namespace {
+
+// level_lanes<1> four lanes at a time with SSE2: the same IEEE operations in
+// the same order (x86-64 does scalar float in SSE too), selects as masks.
+struct Sse {
+  static __m128 sel(__m128 m, __m128 a, __m128 b) { return _mm_or_ps(_mm_and_ps(m, a), _mm_andnot_ps(m, b)); }
+  static __m128 abs(__m128 x) { return _mm_andnot_ps(_mm_set1_ps(-0.0f), x); }
+  static __m128 c(float v) { return _mm_set1_ps(v); }
+
+  static __m128 atan_pos(__m128 t) {
+    const __m128 big = _mm_cmpgt_ps(t, c(2.414213562373095f)), mid = _mm_cmpgt_ps(t, c(0.4142135623730950f));
+    const __m128 x = sel(big, _mm_div_ps(c(-1.0f), t), sel(mid, _mm_div_ps(_mm_sub_ps(t, c(1)), _mm_add_ps(t, c(1))), t));
+    const __m128 y = sel(big, c(kPiF / 2), sel(mid, c(kPiF / 4), _mm_setzero_ps()));
+    const __m128 z = _mm_mul_ps(x, x);
+    __m128 q = _mm_sub_ps(_mm_mul_ps(c(8.05374449538e-2f), z), c(1.38776856032e-1f));
+    q = _mm_add_ps(_mm_mul_ps(q, z), c(1.99777106478e-1f));
+    q = _mm_sub_ps(_mm_mul_ps(q, z), c(3.33329491539e-1f));
+    q = _mm_mul_ps(_mm_mul_ps(q, z), x);
+    return _mm_add_ps(_mm_add_ps(y, q), x);
+  }
+
+  static __m128 atan2_pos(__m128 y, __m128 x) {
+    const __m128 a = atan_pos(_mm_div_ps(y, abs(x)));
+    const __m128 r = sel(_mm_cmpgt_ps(x, _mm_setzero_ps()), a, _mm_sub_ps(c(kPiF), a));
+    const __m128 axis = sel(_mm_cmpeq_ps(y, _mm_setzero_ps()), _mm_setzero_ps(), c(kPiF / 2));
+    return sel(_mm_cmpeq_ps(x, _mm_setzero_ps()), axis, r);
+  }
+
+  static __m128 level(__m128 df, __m128 dr, __m128 du) {
+    const __m128 ma = atan2_pos(abs(dr), df), mb = atan2_pos(abs(du), abs(df));
+    const __m128 l2 = _mm_add_ps(_mm_mul_ps(ma, ma), _mm_mul_ps(mb, mb));
+    const __m128 l = _mm_sqrt_ps(l2);
+    const __m128 b = sel(_mm_cmpge_ps(du, _mm_setzero_ps()), c(kUpperF), c(kLowerF));
+    const __m128 num = _mm_add_ps(_mm_mul_ps(_mm_mul_ps(c(kTemporalF * kTemporalF), ma), ma),
+                                  _mm_mul_ps(_mm_mul_ps(_mm_mul_ps(b, b), mb), mb));
+    const __m128 edge = _mm_sqrt_ps(_mm_div_ps(num, l2));
+    const __m128 outer = sel(_mm_cmplt_ps(l, edge), _mm_div_ps(_mm_sub_ps(edge, l), _mm_sub_ps(edge, c(kCentralF))),
+                             _mm_setzero_ps());
+    const __m128 lv = sel(_mm_cmple_ps(l, c(kCentralF)), c(1), outer);
+    const __m128 n2 = _mm_add_ps(_mm_add_ps(_mm_mul_ps(df, df), _mm_mul_ps(dr, dr)), _mm_mul_ps(du, du));
+    const __m128 inner = _mm_and_ps(_mm_cmpgt_ps(df, _mm_setzero_ps()),
+                                    _mm_cmpge_ps(_mm_mul_ps(df, df), _mm_mul_ps(c(kCosInner * kCosInner), n2)));
+    const __m128 behind = _mm_and_ps(_mm_cmplt_ps(df, _mm_setzero_ps()),
+                                     _mm_cmple_ps(abs(dr), _mm_mul_ps(_mm_sub_ps(_mm_setzero_ps(), df), c(kTanBehind))));
+    return sel(inner, c(1), sel(behind, _mm_setzero_ps(), lv));
+  }
+};
+
+}  // namespace
+#endif
+
+void field_levels(const float* df, const float* dr, const float* du, float* level) {
+  using B = Lanes<kFieldBatch>;
+  const B f = Eigen::Map<const B>(df), r = Eigen::Map<const B>(dr), u = Eigen::Map<const B>(du);
+  const B n2 = f * f + r * r + u * u;
+  if (!((n2 > 0).all() && n2.isFinite().all())) {  // a zero or huge direction: one at a time
+    for (int i = 0; i < kFieldBatch; ++i) level[i] = field_level(Eigen::Vector3f(df[i], dr[i], du[i]));
+    return;
+  }
+#if defined(__SSE2__)
+  static_assert(kFieldBatch % 4 == 0);
+  for (int i = 0; i < kFieldBatch; i += 4)
+    _mm_storeu_ps(level + i, Sse::level(_mm_loadu_ps(df + i), _mm_loadu_ps(dr + i), _mm_loadu_ps(du + i)));
+#else
+  Eigen::Map<B> out(level);
+  out = level_lanes<kFieldBatch>(f, r, u);
+#endif
 }
 
 double field_level(const Eigen::Vector3d& d) {

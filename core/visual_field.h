@@ -60,6 +60,10 @@ FieldPoint visual_field(const Eigen::Vector3d& d_eye);
 // (l >= m_a >= 5pi/9 >= L).
 double field_level(const Eigen::Vector3d& d_eye);
 float field_level(const Eigen::Vector3f& d_eye);  // the same, for a tracer's float rays
+// field_level of kFieldBatch directions at once, (d_f, d_r, d_u) as three
+// arrays: the same bits lane for lane, in SIMD (a row of a tracer's tile).
+inline constexpr int kFieldBatch = 16;
+void field_levels(const float* d_f, const float* d_r, const float* d_u, float* level);
 inline double field_level(const EyeFrame& eye, const Eigen::Vector3d& world_dir) {
   return field_level(eye.to_eye(world_dir));
 }

@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
 #include <functional>
 #include <memory>
 #include <random>
@@ -83,6 +84,27 @@ TEST(VisualField, MatchesTheSeedFormulaAndStaysBounded) {
       const double lv = visual_field({std::cos(a), std::sin(a) * std::cos(phi), std::sin(a) * std::sin(phi)}).level;
       EXPECT_LE(lv, last + 1e-12);
       last = lv;
+    }
+  }
+}
+
+TEST(VisualField, BatchedLevelsAreTheSameBits) {
+  // Random directions of any length, plus the singular ones, in batches.
+  std::mt19937 rng(11);
+  std::normal_distribution<float> g(0, 1);
+  std::uniform_real_distribution<float> scale(-20, 20);
+  std::vector<Vector3f> dirs = {{1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {0, 0, -1}, {0, -1, 0},
+                                {std::cos(0.5235988f), std::sin(0.5235988f), 0}, {0, 0, 0}, {NAN, 0, 0}, {1e30f, 1e30f, 0}};
+  while (dirs.size() % kFieldBatch != 0 || dirs.size() < 20000)
+    dirs.push_back(Vector3f(g(rng), g(rng), g(rng)) * std::pow(2.0f, scale(rng)));
+  for (size_t b = 0; b < dirs.size(); b += kFieldBatch) {
+    float f[kFieldBatch], r[kFieldBatch], u[kFieldBatch], lv[kFieldBatch];
+    for (int i = 0; i < kFieldBatch; ++i) f[i] = dirs[b + i].x(), r[i] = dirs[b + i].y(), u[i] = dirs[b + i].z();
+    field_levels(f, r, u, lv);
+    for (int i = 0; i < kFieldBatch; ++i) {
+      const float one = field_level(dirs[b + i]);
+      ASSERT_EQ(std::memcmp(&lv[i], &one, sizeof(float)), 0) << dirs[b + i].transpose() << ": " << lv[i] << " vs " << one;
+      ASSERT_TRUE(lv[i] >= 0 && lv[i] <= 1);
     }
   }
 }
