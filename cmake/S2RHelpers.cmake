@@ -31,7 +31,10 @@ function(s2r_test name)
     set(labels ${A_LABELS})
   endif()
   set(env "LIBCAMERA_LOG_LEVELS=*:ERROR" "LIBGL_ALWAYS_SOFTWARE=1")
+  set(timeout 900)
   if(S2R_SANITIZE)
+    # Instrumented code runs 3-10x slower (the Ceres tests most).
+    set(timeout 2400)
     # Third-party allocations kept for the process lifetime are suppressed. Mesa's
     # GL driver is unloaded before LeakSanitizer reports, leaving its allocations
     # unattributable, so OpenGL tests run with ASan/UBSan but without leak checks.
@@ -42,5 +45,5 @@ function(s2r_test name)
     endif()
     list(APPEND env "UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1")
   endif()
-  set_tests_properties(${name} PROPERTIES LABELS "${labels}" TIMEOUT 900 ENVIRONMENT "${env}")
+  set_tests_properties(${name} PROPERTIES LABELS "${labels}" TIMEOUT ${timeout} ENVIRONMENT "${env}")
 endfunction()
