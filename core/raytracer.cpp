@@ -660,21 +660,30 @@ TraceResult RayTracer::render(const Screen& screen, const Vector3d& eye, const T
     // A tile whose rays all pass beside the scene's box is background at any
     // level: no ray is traced there, in the full render as in the LOD one.
     const bool empty = impl_->tile_misses_bounds(eye, corners);
-    // In a mixed tile the levels of a row come kFieldBatch at a time (SIMD).
+    // Directions and (in a mixed tile) levels come kFieldBatch pixels of a
+    // row at a time, the levels in SIMD.
+    std::array<Vector3f, kFieldBatch> dirs;
     std::array<float, kFieldBatch> df{}, dr{}, du{}, lv{};
+    const auto ray_dir = [&](int x, int y) {
+      Vector3f v = corner + (x + 0.5f) * step_x + (y + 0.5f) * step_y;
+      return Vector3f(v / v.norm());
+    };
     for (int y = y0; y < y1; ++y)
       for (int x = x0; x < x1; ++x) {
         ++st.pixels;
-        const Vector3f dir = (corner + (x + 0.5f) * step_x + (y + 0.5f) * step_y).normalized();
         const int lane = (x - x0) % kFieldBatch;
-        if (region == FieldRegion::kMixed && lane == 0) {
-          for (int i = 0; i < kFieldBatch; ++i) {
-            const int xi = std::min(x + i, x1 - 1);  // past the tile: repeat its last pixel
-            const Vector3f di = (corner + (xi + 0.5f) * step_x + (y + 0.5f) * step_y).normalized();
-            df[i] = gf.dot(di), dr[i] = gr.dot(di), du[i] = gu.dot(di);
+        if (lane == 0 && region != FieldRegion::kOutside) {  // outside: background, no ray
+          const int n = std::min(kFieldBatch, x1 - x);
+          for (int i = 0; i < n; ++i) dirs[i] = ray_dir(x + i, y);
+          if (region == FieldRegion::kMixed) {
+            for (int i = 0; i < kFieldBatch; ++i) {
+              const Vector3f& di = dirs[std::min(i, n - 1)];  // past the tile: repeat its last pixel
+              df[i] = gf.dot(di), dr[i] = gr.dot(di), du[i] = gu.dot(di);
+            }
+            field_levels(df.data(), dr.data(), du.data(), lv.data());
           }
-          field_levels(df.data(), dr.data(), du.data(), lv.data());
         }
+        const Vector3f& dir = dirs[lane];
         const float level = region == FieldRegion::kCentral ? 1.0f : region == FieldRegion::kOutside ? 0.0f : lv[lane];
         r.level.at(x, y) = level;
         Vector3f c = bg;
