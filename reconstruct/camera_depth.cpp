@@ -1,5 +1,6 @@
 #include "reconstruct/camera_depth.h"
 
+#include <algorithm>
 #include <limits>
 #include <mutex>
 
@@ -13,6 +14,9 @@ struct MeshRaycaster::Impl {
   RTCDevice device = nullptr;
   RTCScene scene = nullptr;
   size_t triangles = 0;
+  // The mesh's bounds, a little enlarged: rays that miss them are not traced
+  // (most of a turntable camera's pixels see no object).
+  Eigen::AlignedBox3f bounds;
   std::mutex rays_mutex;
   std::shared_ptr<const std::vector<Eigen::Vector3f>> rays;
   Intrinsics rays_for;
@@ -41,8 +45,13 @@ Result<std::unique_ptr<MeshRaycaster>> MeshRaycaster::create(const Mesh& mesh) {
       rtcReleaseGeometry(g);
       return fail("Embree: out of memory for " + std::to_string(mesh.faces.size()) + " triangles");
     }
-    for (size_t i = 0; i < mesh.vertices.size(); ++i)
+    for (size_t i = 0; i < mesh.vertices.size(); ++i) {
       for (int k = 0; k < 3; ++k) vb[3 * i + k] = mesh.vertices[i][k];
+      impl->bounds.extend(Eigen::Vector3f(vb[3 * i], vb[3 * i + 1], vb[3 * i + 2]));
+    }
+    const float pad = 1e-4f * impl->bounds.diagonal().norm() + 1e-6f;
+    impl->bounds.min().array() -= pad;
+    impl->bounds.max().array() += pad;
     for (size_t i = 0; i < mesh.faces.size(); ++i)
       for (int k = 0; k < 3; ++k) ib[3 * i + k] = static_cast<unsigned>(mesh.faces[i][k]);
     rtcCommitGeometry(g);
@@ -55,7 +64,28 @@ Result<std::unique_ptr<MeshRaycaster>> MeshRaycaster::create(const Mesh& mesh) {
   return std::unique_ptr<MeshRaycaster>(new MeshRaycaster(std::move(impl)));
 }
 
+namespace {
+
+// Whether the ray o + t d (t >= 0) meets the box (slabs; IEEE infinities
+// handle axis-parallel rays, NaN comparisons fail towards "meets").
+bool meets(const Eigen::AlignedBox3f& b, const Eigen::Vector3f& o, const Eigen::Vector3f& d) {
+  if (b.isEmpty()) return false;
+  float t0 = 0, t1 = std::numeric_limits<float>::infinity();
+  for (int k = 0; k < 3; ++k) {
+    const float inv = 1.f / d[k];
+    float a = (b.min()[k] - o[k]) * inv, c = (b.max()[k] - o[k]) * inv;
+    if (a > c) std::swap(a, c);
+    if (a > t0) t0 = a;
+    if (c < t1) t1 = c;
+    if (t0 > t1) return false;
+  }
+  return true;
+}
+
+}  // namespace
+
 float MeshRaycaster::distance(const Eigen::Vector3f& o, const Eigen::Vector3f& d) const {
+  if (!meets(impl_->bounds, o, d)) return 0.f;
   RTCIntersectContext ctx;
   rtcInitIntersectContext(&ctx);
   RTCRayHit rh{};
@@ -91,11 +121,40 @@ ImageF MeshRaycaster::distance_image(const Intrinsics& K, const Eigen::Isometry3
     }
     rays = impl_->rays;
   }
+  // Eight neighbouring pixels of a row at a time: coherent rays traced as one
+  // packet (those that miss the mesh's bounds are masked off).
   parallel_for(K.height, worker_count(threads), [&](int y) {
-    for (int x = 0; x < K.width; ++x) {
-      const Eigen::Vector3f& r = (*rays)[size_t(y) * K.width + x];
-      if (r.z() <= 0) continue;
-      out.data[size_t(y) * K.width + x] = distance(o, R * r);
+    RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    ctx.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+    for (int x0 = 0; x0 < K.width; x0 += 8) {
+      alignas(32) int valid[8];
+      alignas(32) RTCRayHit8 rh;
+      int any = 0;
+      for (int k = 0; k < 8; ++k) {
+        valid[k] = 0;
+        const int x = x0 + k;
+        if (x >= K.width) continue;
+        const Eigen::Vector3f& r = (*rays)[size_t(y) * K.width + x];
+        if (r.z() <= 0) continue;
+        const Eigen::Vector3f d = R * r;
+        if (!meets(impl_->bounds, o, d)) continue;
+        valid[k] = -1, any = 1;
+        rh.ray.org_x[k] = o.x(), rh.ray.org_y[k] = o.y(), rh.ray.org_z[k] = o.z();
+        rh.ray.dir_x[k] = d.x(), rh.ray.dir_y[k] = d.y(), rh.ray.dir_z[k] = d.z();
+        rh.ray.tnear[k] = 0;
+        rh.ray.tfar[k] = std::numeric_limits<float>::infinity();
+        rh.ray.time[k] = 0;
+        rh.ray.mask[k] = 0xffffffffu;
+        rh.ray.id[k] = 0;
+        rh.ray.flags[k] = 0;
+        rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
+        rh.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
+      }
+      if (!any) continue;
+      rtcIntersect8(valid, impl_->scene, &ctx, &rh);
+      for (int k = 0; k < 8; ++k)
+        if (valid[k] && rh.hit.geomID[k] != RTC_INVALID_GEOMETRY_ID) out.data[size_t(y) * K.width + x0 + k] = rh.ray.tfar[k];
     }
   });
   return out;
