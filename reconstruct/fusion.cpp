@@ -220,6 +220,8 @@ void SparseVolume::integrate(const DepthObservation& v, int threads) {
   // 2. Projective update of every touched voxel, leaf nodes in parallel (each
   //    leaf's voxels are written by one task only).
   const Eigen::Isometry3d cam_from_world = v.world_from_camera.inverse();
+  const Intrinsics& K = v.intrinsics;
+  const bool pinhole = !K.has_distortion();
   openvdb::tree::LeafManager<openvdb::MaskTree> leaves(touched->tree());
   std::atomic<size_t> updates{0};
   in_arena(threads, [&] {
@@ -233,22 +235,32 @@ void SparseVolume::integrate(const DepthObservation& v, int threads) {
           const Eigen::Vector3d pw = m.centre(c);
           if (!m.in_crop(pw)) continue;
           const Eigen::Vector3d pc = cam_from_world * pw;
-          auto px = v.intrinsics.project(pc);
-          if (!px) continue;
-          const int x = int(std::lround(px->x())), y = int(std::lround(px->y()));
+          // Without lens distortion, project() reduces to these operations
+          // (the same values, without two calls per voxel).
+          Eigen::Vector2d px;
+          if (pinhole) {
+            if (!(pc.z() > 0)) continue;
+            px = {K.fx * (pc.x() / pc.z()) + K.cx, K.fy * (pc.y() / pc.z()) + K.cy};
+          } else if (auto p = K.project(pc)) {
+            px = *p;
+          } else {
+            continue;
+          }
+          const int x = int(std::lround(px.x())), y = int(std::lround(px.y()));
           if (x < 0 || y < 0 || x >= depth.width || y >= depth.height) continue;
           const uint16_t d = depth.data[size_t(y) * depth.width + x];
           if (d == 0) continue;
           const double sdf = d * v.unit_m - pc.z();
           if (sdf < -m.tau) continue;  // far behind the surface: unknown
           const float s = float(std::clamp(sdf, -m.behind, m.tau));
-          openvdb::Vec3s val = dst->getValue(c);
+          const openvdb::Index offset = it.pos();  // the same layout in both trees' leaves
+          openvdb::Vec3s val = dst->getValue(offset);
           const float n = val[1] + 1.f;
           const float delta = s - val[0];
           val[0] += delta / n;
           val[2] += delta * (s - val[0]);
           val[1] = n;
-          dst->setValueOnly(c, val);
+          dst->setValueOnly(offset, val);
           ++local;
         }
       }
