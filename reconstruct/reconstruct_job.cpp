@@ -122,6 +122,20 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   };
   std::vector<View> views;
   {
+    // Colour is needed for silhouettes and textures only.
+    const bool want_color = job.textures || job.geometry != "depth";
+    auto wanted = [&](size_t i) {
+      return !held.count(int(i)) && poses->world_from_camera[i] && !s.frames[i].color.empty();
+    };
+    // The images are decoded in parallel; errors are reported below in frame order.
+    std::vector<std::optional<Result<ImageU8>>> colors(s.frames.size());
+    std::vector<std::optional<Result<ImageU16>>> depths(s.frames.size());
+    parallel_for(int(s.frames.size()), job.threads, [&](int k) {
+      const size_t i = size_t(k);
+      if (!wanted(i)) return;
+      if (want_color) colors[i] = load_color(s, s.frames[i]);
+      if (!s.frames[i].depth.empty()) depths[i] = load_depth(s, s.frames[i]);
+    });
     Progress progress("load frames", s.frames.size());
     for (size_t i = 0; i < s.frames.size(); ++i, progress.tick()) {
       const Frame& f = s.frames[i];
@@ -143,15 +157,14 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
       if (!K) return fail("frame " + std::to_string(i) + ": no colour intrinsics (session or --calibration)");
       v.K = *K;
       v.world_from_camera = *poses->world_from_camera[i];
-      // Colour is needed for silhouettes and textures only.
-      if (job.textures || job.geometry != "depth") {
-        auto c = load_color(s, f);
+      if (want_color) {
+        Result<ImageU8>& c = *colors[i];
         if (!c) return std::unexpected(c.error());
         v.color = std::move(*c);
       }
       if (!f.depth.empty()) {
         if (!depth_K) return fail("session has depth frames but no depth intrinsics");
-        auto d = load_depth(s, f);
+        Result<ImageU16>& d = *depths[i];
         if (!d) return std::unexpected(d.error());
         v.depth = std::move(*d);
         if (cal && cal->axis) {
