@@ -59,12 +59,19 @@ Status check_ply_header(const fs::path& path) {
   in.read(head.data(), static_cast<std::streamsize>(head.size()));
   head.resize(static_cast<size_t>(in.gcount()));
   size_t pos = 0;
+  bool crlf = false;
+  std::string element;  // the element the property lines belong to
   for (int n = 1;; ++n) {
     const size_t nl = head.find('\n', pos);
     if (nl == std::string::npos) return fail(at + "PLY header has no end_header line in its first 64 KiB");
     std::string line = head.substr(pos, nl - pos);
     pos = nl + 1;
-    if (!line.empty() && line.back() == '\r') line.pop_back();
+    // PCL's parser takes the first line's ending for every line; mixed
+    // endings run its lines together (and trip an assertion in it).
+    const bool cr = !line.empty() && line.back() == '\r';
+    if (n == 1) crlf = cr;
+    if (cr != crlf) return fail(at + "PLY header line " + std::to_string(n) + " mixes line endings (CRLF and LF)");
+    if (cr) line.pop_back();
     const std::string where = at + "PLY header line " + std::to_string(n) + ": ";
     if (n == 1) {
       if (line != "ply") return fail(at + "not a PLY file (first line is not 'ply')");
@@ -87,6 +94,22 @@ Status check_ply_header(const fs::path& path) {
     const bool ok = (key == "format" && k == 3) || (key == "obj_info" && k == 3) || (key == "element" && k == 3) ||
                     (key == "property" && (k == 3 || (k == 5 && words[1] == "list")));
     if (!ok) return fail(where + "'" + line.substr(0, 60) + "' is not a PLY header line");
+    if (key == "property" && k == 5 && element == "vertex")
+      // PCL asserts on a vertex list whose length changes from vertex to vertex.
+      return fail(where + "list properties in the vertex element are not supported");
+    if (key == "element") {
+      element = words[1];
+      // PCL reads the count as a signed number and sizes its buffer from it
+      // (fuzz: "element vertex -4" asked for 48 GB). A count is decimal
+      // digits, and each element takes at least a byte of the file.
+      const std::string& count = words[2];
+      if (count.size() > 18 || !std::all_of(count.begin(), count.end(), [](char c) { return c >= '0' && c <= '9'; }))
+        return fail(where + "element count '" + count.substr(0, 20) + "' is not a non-negative integer");
+      std::error_code ec;
+      const auto file_bytes = fs::file_size(path, ec);
+      if (!ec && std::stoull(count) > file_bytes)
+        return fail(where + "element count " + count + " is more than the file's " + std::to_string(file_bytes) + " bytes can hold");
+    }
   }
 }
 

@@ -57,6 +57,24 @@ TEST(PlyLoad, MalformedHeaderLinesAreErrorsNotAborts) {
   EXPECT_NE(error_of(write_temp("noend.ply", "ply\nformat ascii 1.0\nelement vertex 3\n")).find("no end_header"),
             std::string::npos);
   EXPECT_NE(error_of(write_temp("notply.ply", "solid cube\n")).find("not a PLY file"), std::string::npos);
+  // PCL asserts when CRLF and LF lines are mixed (found by fuzz_ply).
+  s = kAscii;
+  s.replace(0, 4, "ply\r\n");
+  EXPECT_NE(error_of(write_temp("mixed.ply", s)).find("mixes line endings"), std::string::npos);
+  // PCL asserts on vertex lists of varying length (found by fuzz_ply).
+  s = kAscii;
+  s.insert(s.find("element face"), "property list uchar int extra\n");
+  EXPECT_NE(error_of(write_temp("vlist.ply", s)).find("list properties in the vertex element"), std::string::npos);
+}
+
+TEST(PlyLoad, ElementCountsBeyondTheFileAreErrorsNotAllocations) {
+  // PCL sized its buffer from "element vertex -4": 48 GB (found by fuzz_ply).
+  std::string s = kAscii;
+  s.replace(s.find("vertex 3"), 8, "vertex -4");
+  EXPECT_NE(error_of(write_temp("negative.ply", s)).find("is not a non-negative integer"), std::string::npos);
+  s = kAscii;
+  s.replace(s.find("vertex 3"), 8, "vertex 3000000000");
+  EXPECT_NE(error_of(write_temp("huge.ply", s)).find("more than the file's"), std::string::npos);
 }
 
 TEST(PlyLoad, VerticesWithoutCoordinatesOrDataAreErrors) {
