@@ -61,8 +61,7 @@ const Rig& rig(const std::string& scene, int views, double table_error_deg = 0) 
 
 // The textured object is the Stanford bunny (real data, ../shared/data).
 bool have_bunny() { return fs::exists(fs::path(S2R_DATA_DIR) / "stanford_bunny" / "bun_zipper.ply"); }
-#define S2R_NEEDS_BUNNY() \
-  if (!have_bunny()) GTEST_SKIP() << "no Stanford bunny in " << S2R_DATA_DIR
+const std::string kNoBunny = std::string("no Stanford bunny in ") + S2R_DATA_DIR;
 
 struct Outcome {
   RegistrationResult result;
@@ -106,7 +105,7 @@ Outcome run(const Rig& rig, RegistrationOptions o, double perturb_deg = 0, doubl
 }  // namespace
 
 TEST(RigRegistration, TexturedObjectFreeModeFromPerturbedPoses) {
-  S2R_NEEDS_BUNNY();
+  if (!have_bunny()) GTEST_SKIP() << kNoBunny;
   const Rig& r = rig("bunny", 12);
   RegistrationOptions o;
   auto out = run(r, o, 5, 0.005);
@@ -119,7 +118,7 @@ TEST(RigRegistration, TexturedObjectFreeModeFromPerturbedPoses) {
 TEST(RigRegistration, TexturedObjectTurntableModeCorrectsTableError) {
   // The table turns 0.1 deg per step less than commanded (1.1 deg by the
   // last view): the angle correction takes it up.
-  S2R_NEEDS_BUNNY();
+  if (!have_bunny()) GTEST_SKIP() << kNoBunny;
   const Rig& r = rig("bunny", 12, 0.1);
   RegistrationOptions o;
   o.mode = RegistrationMode::kTurntable;
@@ -143,7 +142,7 @@ TEST(RigRegistration, SymmetricObjectSlidesInFreeModeAndHoldsOnTheTurntable) {
 }
 
 TEST(RigRegistration, FortyDegreeSteps) {
-  S2R_NEEDS_BUNNY();
+  if (!have_bunny()) GTEST_SKIP() << kNoBunny;
   const Rig& r = rig("bunny", 9);
   RegistrationOptions o;
   auto out = run(r, o, 5, 0.005);
@@ -154,7 +153,7 @@ TEST(RigRegistration, FortyDegreeSteps) {
 TEST(RigRegistration, LargeDepthHoles) {
   // Every other view loses the left 40 % of its points (a reflective patch,
   // a sensor dropout).
-  S2R_NEEDS_BUNNY();
+  if (!have_bunny()) GTEST_SKIP() << kNoBunny;
   const Rig& r = rig("bunny", 12);
   RegistrationOptions o;
   auto out = run(r, o, 5, 0.005, [](RegistrationInput& in) {
@@ -175,7 +174,7 @@ TEST(RigRegistration, LargeDepthHoles) {
 
 TEST(RigRegistration, LittleOverlapIsRegisteredOrFlagged) {
   // Four views 90 deg apart: neighbours share a thin strip.
-  S2R_NEEDS_BUNNY();
+  if (!have_bunny()) GTEST_SKIP() << kNoBunny;
   const Rig& r = rig("bunny", 4);
   RegistrationOptions o;
   auto out = run(r, o, 3, 0.003);
@@ -190,7 +189,7 @@ TEST(RigRegistration, LittleOverlapIsRegisteredOrFlagged) {
 }
 
 TEST(RigRegistration, TableAngle180DegreesOffIsDetected) {
-  S2R_NEEDS_BUNNY();
+  if (!have_bunny()) GTEST_SKIP() << kNoBunny;
   const Rig& r = rig("bunny", 12);
   RegistrationOptions o;
   o.mode = RegistrationMode::kFree;
