@@ -5,6 +5,7 @@
 #include <pcl/point_types.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <fstream>
 #include <string>
@@ -48,19 +49,81 @@ Status check_exists(const fs::path& path) {
   return {};
 }
 
+struct PlyProperty {
+  std::string name;
+  bool list = false;
+  std::string count_type, item_type;  // list properties only
+};
+struct PlyElement {
+  std::string name;
+  uint64_t count = 0;
+  std::vector<PlyProperty> properties;
+};
+
+bool is_decimal(const std::string& s, size_t max_digits) {
+  return !s.empty() && s.size() <= max_digits &&
+         std::all_of(s.begin(), s.end(), [](char c) { return c >= '0' && c <= '9'; });
+}
+
+// A Stanford range grid (element range_grid, one list of vertex indices per
+// grid cell) is where PCL reorders the vertices into an organised cloud. It
+// trusts every index: a negative one wraps its unsigned offset and reads far
+// outside the buffer. Only the ASCII form is read (the one the Stanford scans
+// use); every index must name a vertex.
+Status check_range_grid(const fs::path& path, size_t body_offset, const std::vector<PlyElement>& elements,
+                        uint64_t vertices) {
+  const std::string at = "'" + path.string() + "': ";
+  std::ifstream in(path, std::ios::binary);
+  in.seekg(static_cast<std::streamoff>(body_offset));
+  std::string line;
+  uint64_t line_no = 0;
+  for (const auto& e : elements) {
+    for (uint64_t i = 0; i < e.count; ++i) {
+      if (!std::getline(in, line)) return {};  // short body: PCL's own parse error
+      ++line_no;
+      if (e.name != "range_grid") continue;
+      std::vector<std::string> words;
+      for (size_t p = 0; p < line.size();) {
+        while (p < line.size() && std::isspace(static_cast<unsigned char>(line[p]))) ++p;
+        size_t q = p;
+        while (q < line.size() && !std::isspace(static_cast<unsigned char>(line[q]))) ++q;
+        if (q > p) words.push_back(line.substr(p, q - p));
+        p = q;
+      }
+      const std::string where = at + "PLY range_grid cell " + std::to_string(i) + " (body line " +
+                                std::to_string(line_no) + "): ";
+      if (words.empty() || !is_decimal(words[0], 3) || std::stoul(words[0]) != words.size() - 1)
+        return fail(where + "not a count followed by that many vertex indices");
+      for (size_t k = 1; k < words.size(); ++k)
+        if (!is_decimal(words[k], 18) || std::stoull(words[k]) >= vertices)
+          return fail(where + "'" + words[k].substr(0, 20) + "' is not the index of one of the " +
+                      std::to_string(vertices) + " vertices");
+    }
+  }
+  return {};
+}
+
 // PCL's PLY reader asserts (aborts) on some malformed header lines, e.g. an
-// obj_info line without exactly three words. The header is checked against
-// the PLY grammar first: printable words separated by single spaces, the
-// keywords PCL knows with their word counts, "end_header" within 64 KiB.
+// obj_info line without exactly three words, and trusts what it derives from
+// the header. The header is checked against the PLY grammar first: printable
+// words separated by single spaces, the keywords PCL knows with their word
+// counts, "end_header" within 64 KiB; then what PCL sizes from it: element
+// counts, the organised cloud's num_cols x num_rows, the range grid.
 Status check_ply_header(const fs::path& path) {
   const std::string at = "'" + path.string() + "': ";
+  std::error_code ec;
+  const uint64_t file_bytes = fs::file_size(path, ec);
   std::ifstream in(path, std::ios::binary);
   std::string head(64 * 1024, '\0');
   in.read(head.data(), static_cast<std::streamsize>(head.size()));
   head.resize(static_cast<size_t>(in.gcount()));
   size_t pos = 0;
   bool crlf = false;
-  std::string element;  // the element the property lines belong to
+  std::string format;
+  std::vector<PlyElement> elements;  // property lines belong to the last one
+  // The organised cloud's size as PCL sets it: obj_info num_cols / num_rows,
+  // else the vertex count by one when the vertex element is defined.
+  uint64_t width = 0, height = 0;
   for (int n = 1;; ++n) {
     const size_t nl = head.find('\n', pos);
     if (nl == std::string::npos) return fail(at + "PLY header has no end_header line in its first 64 KiB");
@@ -77,7 +140,7 @@ Status check_ply_header(const fs::path& path) {
       if (line != "ply") return fail(at + "not a PLY file (first line is not 'ply')");
       continue;
     }
-    if (line == "end_header") return {};
+    if (line == "end_header") break;
     std::vector<std::string> words;
     for (size_t i = 0; i <= line.size();) {
       const size_t sp = std::min(line.find(' ', i), line.size());
@@ -94,23 +157,70 @@ Status check_ply_header(const fs::path& path) {
     const bool ok = (key == "format" && k == 3) || (key == "obj_info" && k == 3) || (key == "element" && k == 3) ||
                     (key == "property" && (k == 3 || (k == 5 && words[1] == "list")));
     if (!ok) return fail(where + "'" + line.substr(0, 60) + "' is not a PLY header line");
-    if (key == "property" && k == 5 && element == "vertex")
-      // PCL asserts on a vertex list whose length changes from vertex to vertex.
-      return fail(where + "list properties in the vertex element are not supported");
+    if (key == "format") format = words[1];
+    if (key == "obj_info" && (words[1] == "num_cols" || words[1] == "num_rows")) {
+      // PCL reads these with atoi: "4NSt6locale500" is 4, "-1" a 4-billion-wide cloud.
+      if (!is_decimal(words[2], 9))
+        return fail(where + words[1] + " '" + words[2].substr(0, 20) + "' is not a non-negative integer");
+      (words[1] == "num_cols" ? width : height) = std::stoull(words[2]);
+    }
+    if (key == "property") {
+      if (elements.empty()) return fail(where + "a property before any element");
+      PlyProperty p;
+      p.list = k == 5;
+      p.name = words[k - 1];
+      if (p.list) {
+        p.count_type = words[2];
+        p.item_type = words[3];
+      }
+      if (p.list && elements.back().name == "vertex")
+        // PCL asserts on a vertex list whose length changes from vertex to vertex.
+        return fail(where + "list properties in the vertex element are not supported");
+      elements.back().properties.push_back(p);
+    }
     if (key == "element") {
-      element = words[1];
       // PCL reads the count as a signed number and sizes its buffer from it
       // (fuzz: "element vertex -4" asked for 48 GB). A count is decimal
       // digits, and each element takes at least a byte of the file.
       const std::string& count = words[2];
-      if (count.size() > 18 || !std::all_of(count.begin(), count.end(), [](char c) { return c >= '0' && c <= '9'; }))
+      if (!is_decimal(count, 18))
         return fail(where + "element count '" + count.substr(0, 20) + "' is not a non-negative integer");
-      std::error_code ec;
-      const auto file_bytes = fs::file_size(path, ec);
       if (!ec && std::stoull(count) > file_bytes)
-        return fail(where + "element count " + count + " is more than the file's " + std::to_string(file_bytes) + " bytes can hold");
+        return fail(where + "element count " + count + " is more than the file's " + std::to_string(file_bytes) +
+                    " bytes can hold");
+      for (const auto& e : elements)
+        // A second vertex element is written past the first one's buffer.
+        if (e.name == words[1]) return fail(where + "element '" + words[1] + "' is defined twice");
+      elements.push_back({words[1], std::stoull(count), {}});
+      if (words[1] == "vertex" && (width == 0 || height == 0)) {
+        width = elements.back().count;
+        height = 1;
+      }
     }
   }
+  uint64_t vertices = 0;
+  const PlyElement* grid = nullptr;
+  for (const auto& e : elements) {
+    if (e.name == "vertex") vertices = e.count;
+    if (e.name == "range_grid") grid = &e;
+  }
+  // PCL sizes its point buffer to width x height and writes the vertices into
+  // it in file order (fuzz: num_cols 12 x num_rows 4 with more vertices
+  // tripped its bounds assertion). An organised cloud has a vertex per cell,
+  // or a range grid that says which vertex each cell holds.
+  const bool any_vertex = std::any_of(elements.begin(), elements.end(), [](const PlyElement& e) { return e.name == "vertex"; });
+  if (any_vertex && width * height != vertices && !(grid && width * height == grid->count))
+    return fail(at + "PLY num_cols x num_rows (" + std::to_string(width) + " x " + std::to_string(height) +
+                ") is neither the vertex count (" + std::to_string(vertices) + ") nor a range grid's cell count");
+  if (grid) {
+    const bool index_list = grid->properties.size() == 1 && grid->properties[0].list &&
+                            (grid->properties[0].name == "vertex_indices" || grid->properties[0].name == "vertex_index");
+    if (!index_list)
+      return fail(at + "PLY range_grid must hold one property, the list vertex_indices");
+    if (format != "ascii") return fail(at + "PLY range_grid is read in ASCII files only (this one is " + format + ")");
+    return check_range_grid(path, pos, elements, vertices);
+  }
+  return {};
 }
 
 // PCL's conversion to typed points trusts the blob the reader made of the

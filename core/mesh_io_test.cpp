@@ -77,6 +77,61 @@ TEST(PlyLoad, ElementCountsBeyondTheFileAreErrorsNotAllocations) {
   EXPECT_NE(error_of(write_temp("huge.ply", s)).find("more than the file's"), std::string::npos);
 }
 
+TEST(PlyLoad, OrganisedCloudSizeMustMatchTheVertices) {
+  // PCL sizes its buffer from num_cols x num_rows (read with atoi) and writes
+  // every vertex into it: 12 x 4 cells for more vertices tripped its bounds
+  // assertion, and "4NSt6locale500" read as 4 (found by fuzz_ply).
+  std::string s = kAscii;
+  s.insert(s.find("element"), "obj_info num_cols 12\nobj_info num_rows 4\n");
+  EXPECT_NE(error_of(write_temp("grid.ply", s)).find("num_cols x num_rows (12 x 4)"), std::string::npos);
+  s = kAscii;
+  s.insert(s.find("element"), "obj_info num_cols 3\nobj_info num_rows 4NSt6locale500\n");
+  EXPECT_NE(error_of(write_temp("atoi.ply", s)).find("num_rows '4NSt6locale500' is not a non-negative integer"),
+            std::string::npos);
+  // After the vertex element PCL still takes the width: 2 x 1 cells for 3 vertices.
+  s = kAscii;
+  s.insert(s.find("element face"), "obj_info num_cols 2\n");
+  EXPECT_NE(error_of(write_temp("late.ply", s)).find("(2 x 1)"), std::string::npos);
+  // A second vertex element writes past the first one's buffer.
+  s = kAscii;
+  s.insert(s.find("element face"), "element vertex 1\nproperty float x\n");
+  EXPECT_NE(error_of(write_temp("twice.ply", s)).find("element 'vertex' is defined twice"), std::string::npos);
+  // num_cols x num_rows equal to the vertex count is an organised cloud.
+  s = kAscii;
+  s.insert(s.find("element"), "obj_info num_cols 3\nobj_info num_rows 1\n");
+  const auto p = write_temp("organised.ply", s);
+  EXPECT_TRUE(read_ply_points(p));
+  fs::remove(p);
+}
+
+// A 2 x 2 Stanford range grid over three vertices, one cell empty.
+std::string range_grid_ply(const std::string& cells, const std::string& format = "ascii") {
+  return "ply\nformat " + format + " 1.0\nobj_info num_cols 2\nobj_info num_rows 2\nelement vertex 3\n"
+         "property float x\nproperty float y\nproperty float z\nelement range_grid 4\n"
+         "property list uchar int vertex_indices\nend_header\n0 0 1\n1 0 1\n0 1 1\n" + cells;
+}
+
+TEST(PlyLoad, RangeGridsAreOrganisedCloudsWithEveryIndexChecked) {
+  const auto ok = write_temp("rgrid.ply", range_grid_ply("1 0\n0\n1 1\n1 2\n"));
+  auto scan = read_ply_points(ok);
+  ASSERT_TRUE(scan) << scan.error().message;
+  EXPECT_EQ(scan->grid_width, 2);
+  EXPECT_EQ(scan->grid_height, 2);
+  EXPECT_EQ(scan->points.size(), 3u);
+  EXPECT_EQ(scan->grid_index, (std::vector<int32_t>{0, -1, 1, 2}));
+  fs::remove(ok);
+  // PCL turns a negative index into a wrapped unsigned offset and reads far
+  // outside its buffer; one past the vertices reads cells that hold none.
+  EXPECT_NE(error_of(write_temp("neg.ply", range_grid_ply("1 0\n0\n1 -1\n1 2\n"))).find("'-1' is not the index"),
+            std::string::npos);
+  EXPECT_NE(error_of(write_temp("past.ply", range_grid_ply("1 0\n0\n1 3\n1 2\n"))).find("'3' is not the index"),
+            std::string::npos);
+  EXPECT_NE(error_of(write_temp("count.ply", range_grid_ply("2 0\n0\n1 1\n1 2\n"))).find("not a count followed"),
+            std::string::npos);
+  EXPECT_NE(error_of(write_temp("bin.ply", range_grid_ply("", "binary_little_endian"))).find("ASCII files only"),
+            std::string::npos);
+}
+
 TEST(PlyLoad, VerticesWithoutCoordinatesOrDataAreErrors) {
   // PCL's conversion to points would bind a reference to element 0 of an empty cloud.
   std::string s = kAscii;

@@ -63,19 +63,38 @@ def small_model(model_dir, facets):
                      payload(b"".join(nodes), 52)])
 
 
-def ply_excerpt(path, n):
-    """Header and the first n vertices of an ASCII PLY scan; other elements dropped."""
+def ply_excerpt(path, row, col, rows, cols):
+    """A window of an ASCII Stanford range scan: the rows x cols cells of its
+    range grid from (row, col), the vertices they hold renumbered, the header's
+    num_cols / num_rows and element counts made to match."""
     lines = read(path).split(b"\r\n")
     end = lines.index(b"end_header")
-    head, keep = [], False
-    for l in lines[:end + 1]:
-        if l.startswith(b"element"):
-            keep = l.split()[1] == b"vertex"
-            if keep:
-                l = b"element vertex %d" % n
-        if keep or not (l.startswith(b"element") or l.startswith(b"property")):
-            head.append(l)
-    return b"\r\n".join(head + lines[end + 1:end + 1 + n]) + b"\r\n"
+    head = lines[:end + 1]
+    count = lambda name: int(next(l for l in head if l.startswith(b"element " + name)).split()[2])
+    width = int(next(l for l in head if l.startswith(b"obj_info num_cols")).split()[2])
+    nv = count(b"vertex")
+    body = lines[end + 1:]
+    cells, verts = [], []
+    for r in range(row, row + rows):
+        for c in range(col, col + cols):
+            words = body[nv + r * width + c].split()
+            if words[0] == b"0":
+                cells.append(b"0")
+            else:
+                verts.append(body[int(words[1])])
+                cells.append(b"1 %d" % (len(verts) - 1))
+    out = []
+    for l in head:
+        if l.startswith(b"obj_info num_cols"):
+            l = b"obj_info num_cols %d" % cols
+        elif l.startswith(b"obj_info num_rows"):
+            l = b"obj_info num_rows %d" % rows
+        elif l.startswith(b"element vertex"):
+            l = b"element vertex %d" % len(verts)
+        elif l.startswith(b"element range_grid"):
+            l = b"element range_grid %d" % len(cells)
+        out.append(l)
+    return b"\r\n".join(out + verts + cells) + b"\r\n"
 
 
 data = os.environ.get("S2R_DATA", "../shared/data")
@@ -92,8 +111,8 @@ put("poses", "bunny", read("out/demo/register/poses.json"))
 # Stanford .conf files: the real one and the one registration writes back.
 put("stanford_conf", "bun", read(f"{data}/stanford_bunny/bun.conf"))
 put("stanford_conf", "registered", read("out/demo/register/bun.conf"))
-# PLY: a real scan's first vertices; the rig model's patch mesh is binary.
-put("ply", "bun000_excerpt", ply_excerpt(f"{data}/stanford_bunny/bun000.ply", 60))
+# PLY: a window of a real scan's range grid; the rig model's patch mesh is binary.
+put("ply", "bun000_excerpt", ply_excerpt(f"{data}/stanford_bunny/bun000.ply", 24, 124, 8, 10))
 tet = struct.pack("<12f", 0, 0, 0, 0.01, 0, 0, 0, 0.01, 0, 0, 0, 0.01) + b"".join(
     struct.pack("<B3i", 3, *f) for f in ((0, 2, 1), (0, 1, 3), (0, 3, 2), (1, 2, 3)))
 put("ply", "tetrahedron_binary", b"ply\nformat binary_little_endian 1.0\nelement vertex 4\nproperty float x\n"
