@@ -70,7 +70,7 @@ bool is_decimal(const std::string& s, size_t max_digits) {
 // trusts every index: a negative one wraps its unsigned offset and reads far
 // outside the buffer. Only the ASCII form is read (the one the Stanford scans
 // use); every index must name a vertex.
-Status check_range_grid(const fs::path& path, size_t body_offset, const std::vector<PlyElement>& elements,
+Status check_range_grid(const fs::path& path, size_t body_offset, bool crlf, const std::vector<PlyElement>& elements,
                         uint64_t vertices) {
   const std::string at = "'" + path.string() + "': ";
   std::ifstream in(path, std::ios::binary);
@@ -82,6 +82,9 @@ Status check_range_grid(const fs::path& path, size_t body_offset, const std::vec
       if (!std::getline(in, line)) return {};  // short body: PCL's own parse error
       ++line_no;
       if (e.name != "range_grid") continue;
+      // PCL splits a CRLF file's lines at CR (see check_ply_header): one CR, at the end.
+      if (crlf && (line.empty() || line.back() != '\r' || line.find('\r') + 1 != line.size()))
+        return fail(at + "PLY body line " + std::to_string(line_no) + " does not end in CRLF, as the header's lines do");
       std::vector<std::string> words;
       for (size_t p = 0; p < line.size();) {
         while (p < line.size() && std::isspace(static_cast<unsigned char>(line[p]))) ++p;
@@ -136,6 +139,10 @@ Status check_ply_header(const fs::path& path) {
     if (cr != crlf) return fail(at + "PLY header line " + std::to_string(n) + " mixes line endings (CRLF and LF)");
     if (cr) line.pop_back();
     const std::string where = at + "PLY header line " + std::to_string(n) + ": ";
+    // In a CRLF file PCL ends a line at every CR and drops the character
+    // after it: a CR inside a comment starts a line of its own there (fuzz:
+    // one beginning with a space tripped the assertion in its obj_info parser).
+    if (crlf && line.find('\r') != std::string::npos) return fail(where + "a carriage return inside the line");
     if (n == 1) {
       if (line != "ply") return fail(at + "not a PLY file (first line is not 'ply')");
       continue;
@@ -218,7 +225,7 @@ Status check_ply_header(const fs::path& path) {
     if (!index_list)
       return fail(at + "PLY range_grid must hold one property, the list vertex_indices");
     if (format != "ascii") return fail(at + "PLY range_grid is read in ASCII files only (this one is " + format + ")");
-    return check_range_grid(path, pos, elements, vertices);
+    return check_range_grid(path, pos, crlf, elements, vertices);
   }
   return {};
 }

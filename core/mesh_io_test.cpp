@@ -61,6 +61,12 @@ TEST(PlyLoad, MalformedHeaderLinesAreErrorsNotAborts) {
   s = kAscii;
   s.replace(0, 4, "ply\r\n");
   EXPECT_NE(error_of(write_temp("mixed.ply", s)).find("mixes line endings"), std::string::npos);
+  // In a CRLF file PCL splits lines at every CR: a CR inside a comment made
+  // a line of its own that tripped its obj_info assertion (found by fuzz_ply).
+  s = kAscii;
+  for (size_t at = s.find('\n'); at != std::string::npos; at = s.find('\n', at + 2)) s.insert(at, "\r");
+  s.insert(s.find("element"), "comment one\r obj_info is_mesh 0\r\n");
+  EXPECT_NE(error_of(write_temp("cr.ply", s)).find("a carriage return inside the line"), std::string::npos);
   // PCL asserts on vertex lists of varying length (found by fuzz_ply).
   s = kAscii;
   s.insert(s.find("element face"), "property list uchar int extra\n");
