@@ -44,6 +44,7 @@ struct DrawArgs {
   bool lod = false;
   double lod_shape = 0.5, lod_luminance = 1.5, lod_texel = 1.0;
   std::string gaze;  // "" off, "centre", or X,Y pixels
+  double mesh_reliable = 0;
 };
 
 void add_draw_options(CLI::App* sub, DrawArgs& a) {
@@ -68,6 +69,9 @@ void add_draw_options(CLI::App* sub, DrawArgs& a) {
       ->check(CLI::PositiveNumber)->capture_default_str();
   sub->add_option("--gaze", a.gaze, "visual-field LOD around a gaze point (turns --lod on): 'centre' or X,Y in pixels; "
                   "coarser in the periphery, nothing outside the field");
+  sub->add_option("--mesh-reliable", a.mesh_reliable, "billboards: draw the textured patch mesh where the geometry's "
+                  "reliability is at least R (0..1), billboards elsewhere; 0: billboards everywhere (eval: adds a 'hybrid' row)")
+      ->check(CLI::Range(0.0, 1.0))->capture_default_str();
 }
 
 DrawOptions draw_options(const DrawArgs& a) {
@@ -88,6 +92,7 @@ DrawOptions draw_options(const DrawArgs& a) {
   d.lod.shape_px = a.lod_shape;
   d.lod.luminance = a.lod_luminance;
   d.lod.texel_px = a.lod_texel;
+  d.mesh_reliability = a.mesh_reliable;
   return d;
 }
 

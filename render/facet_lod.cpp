@@ -39,6 +39,7 @@ FacetHierarchy FacetHierarchy::build(const Model& m, const std::vector<float>& l
   h.model_facets_ = m.facets.size();
   h.facets_ = m.facets;
   h.facet_cameras_ = m.facet_cameras;
+  for (const auto& f : m.facets) h.least_reliability_.push_back(f.reliability);
   for (const auto& c : m.cameras) h.camera_centres_.push_back(c.world_from_camera.translation().cast<float>());
   const size_t count = m.octree.size();
   if (count == 0 || !(m.voxel_size_m > 0)) {
@@ -113,6 +114,7 @@ FacetHierarchy FacetHierarchy::build(const Model& m, const std::vector<float>& l
     node.side = float(cells(r) * w0);
     float lo = 1, hi = 0;
     double reliability = 0;
+    float least = 1;
     std::fill(seen.begin(), seen.end(), 0);
     for (uint32_t k = node.begin; k < node.end; ++k) {
       const FacetRecord& f = m.facets[h.order_[k]];
@@ -124,6 +126,7 @@ FacetHierarchy FacetHierarchy::build(const Model& m, const std::vector<float>& l
         if (std::isfinite(l)) lo = std::min(lo, l), hi = std::max(hi, l);
       }
       reliability += f.reliability;
+      least = std::min(least, f.reliability);
       for (uint32_t j = 0; j < f.camera_count; ++j) seen[m.facet_cameras[f.first_camera + j]] = 1;
     }
     node.luminance_range = hi > lo ? hi - lo : 0.f;
@@ -141,6 +144,7 @@ FacetHierarchy FacetHierarchy::build(const Model& m, const std::vector<float>& l
     b.camera_count = uint32_t(h.facet_cameras_.size()) - b.first_camera;
     node.billboard = int32_t(h.facets_.size());
     h.facets_.push_back(b);
+    h.least_reliability_.push_back(least);
   }
   return h;
 }

@@ -84,6 +84,10 @@ class FacetHierarchy {
   // The model's facets, then the node billboards; their camera lists.
   const std::vector<FacetRecord>& facets() const { return facets_; }
   const std::vector<uint32_t>& facet_cameras() const { return facet_cameras_; }
+  // Per entry of facets(): the least reliability of the model facets it
+  // stands for (a model facet: its own). Where the patch mesh is drawn for
+  // reliable geometry, an entry at or above the threshold is left to it.
+  const std::vector<float>& least_reliability() const { return least_reliability_; }
 
   // Indices into facets() for this view (with LOD off: every model facet).
   LodStats select(const ViewCamera& view, const LodOptions& options, double near_m, std::vector<uint32_t>& out) const;
@@ -110,6 +114,7 @@ class FacetHierarchy {
   std::vector<uint32_t> loose_;
   std::vector<FacetRecord> facets_;
   std::vector<uint32_t> facet_cameras_;
+  std::vector<float> least_reliability_;
   std::vector<Eigen::Vector3f> camera_centres_;
 };
 

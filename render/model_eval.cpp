@@ -115,6 +115,8 @@ void add_selection(Report& rep, const DrawStats& st, const std::string& suffix) 
   rep.skipped["facets_without_camera" + suffix] = double(st.selection.no_camera);
   rep.skipped["blending_one_exact_camera" + suffix] = double(st.selection.exact_camera);
   if (st.selection.cameras_pruned) rep.skipped["blended_cameras_below_min_weight" + suffix] = double(st.selection.cameras_pruned);
+  if (st.triangles) rep.counts["mesh_triangles" + suffix] = double(st.triangles);
+  if (st.facets_on_mesh) rep.skipped["billboards_left_to_the_reliable_mesh" + suffix] = double(st.facets_on_mesh);
   if (st.lod.nodes_visited) {
     rep.counts["lod_node_billboards" + suffix] = double(st.lod.node_billboards);
     rep.counts["lod_facets_replaced" + suffix] = double(st.lod.facets_replaced);
@@ -212,6 +214,8 @@ Result<Report> run_eval_job(const EvalJob& job) {
     DrawOptions draw;
   };
   std::vector<Method> methods{{"billboards", job.draw}};
+  methods[0].draw.mesh_reliability = 0;
+  if (job.draw.mesh_reliability > 0 && r->renderer->has_mesh()) methods.push_back({"hybrid", job.draw});
   if (job.baselines) {
     Method noclip{"no_clip", job.draw};
     noclip.draw.depth_clip = false;
@@ -317,6 +321,10 @@ Result<Report> run_eval_job(const EvalJob& job) {
     rep.counts["frame_ms_" + n] = mean(frame_ms[n]);
     if (!psnr_held[n].empty()) rep.errors["psnr_db_" + n + "_held_out"] = mean(psnr_held[n]);
     if (!psnr_input[n].empty()) rep.errors["psnr_db_" + n + "_input_views"] = mean(psnr_input[n]);
+  }
+  if (psnr_of.count("hybrid")) {
+    rep.errors["hybrid_over_billboards_db"] = rep.errors["psnr_db_hybrid"] - rep.errors["psnr_db_billboards"];
+    rep.params["mesh_reliability"] = job.draw.mesh_reliability;
   }
   if (psnr_of.count("no_clip")) rep.errors["depth_clip_gain_db"] = rep.errors["psnr_db_billboards"] - rep.errors["psnr_db_no_clip"];
   for (const std::string n : {"mesh", "surface"}) {

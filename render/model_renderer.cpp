@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <unordered_map>
 
 #include "core/image_io.h"
 #include "core/mesh.h"
@@ -216,6 +217,8 @@ void main() {
 const char* kMeshFragment = R"(
 in vec3 v_world;
 uniform int u_camera_count;
+uniform int u_use_list;       // 1: only the cameras in u_cam_list (the view's nearest by direction)
+uniform int u_cam_list[16];
 uniform int u_k;
 uniform vec3 u_eye;
 uniform float u_tol;
@@ -230,7 +233,8 @@ void main() {
   int n = 0;
   float fallback_a = 10.0;  // no camera sees the fragment: the nearest by angle that contains it
   vec3 fallback = vec3(0.0);
-  for (int ci = 0; ci < u_camera_count; ++ci) {
+  for (int li = 0; li < u_camera_count; ++li) {
+    int ci = u_use_list != 0 ? u_cam_list[li] : li;
     vec3 to_cam = normalize(cams[ci].centre.xyz - v_world);
     float a = atan(length(cross(to_cam, to_eye)), dot(to_cam, to_eye));
     if (n > u_k && a >= best_a[u_k] && a >= fallback_a) continue;
@@ -369,6 +373,48 @@ std::vector<float> facet_luminance(const Model& model, const std::vector<RgbazIm
   return lum;
 }
 
+// Per patch-mesh triangle: how reliable the geometry around it is, the most
+// reliable facet within a base voxel of any of its corners (dilated, so the
+// mesh drawn for reliable geometry meets the billboards drawn for the rest
+// with an overlap, not a gap). Facets are hashed by cells of two voxels.
+std::vector<float> triangle_reliability(const Mesh& mesh, const Model& model) {
+  const double c = model.voxel_size_m > 0 ? model.voxel_size_m : 1.0;
+  // Cells of 2 voxels: every facet within a voxel of a point is in the point's 27.
+  auto key = [&](const Eigen::Vector3d& p) {
+    const Eigen::Vector3i k = (p / (2 * c)).array().floor().cast<int>();
+    return (uint64_t(uint32_t(k.x()) & 0x1FFFFF) << 42) | (uint64_t(uint32_t(k.y()) & 0x1FFFFF) << 21) |
+           uint64_t(uint32_t(k.z()) & 0x1FFFFF);
+  };
+  std::unordered_map<uint64_t, std::vector<uint32_t>> cells;
+  for (uint32_t i = 0; i < model.facets.size(); ++i) {
+    const float* f = model.facets[i].center;
+    cells[key(Eigen::Vector3d(f[0], f[1], f[2]))].push_back(i);
+  }
+  std::vector<float> at_vertex(mesh.vertices.size(), 0.f);
+  parallel_for(int(mesh.vertices.size()), 0, [&](int v) {
+    const Eigen::Vector3d p = mesh.vertices[size_t(v)].cast<double>();
+    float best = 0;
+    for (int dz = -1; dz <= 1; ++dz)
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+          const auto it = cells.find(key(p + 2 * c * Eigen::Vector3d(dx, dy, dz)));
+          if (it == cells.end()) continue;
+          for (uint32_t i : it->second) {
+            const FacetRecord& f = model.facets[i];
+            if ((Eigen::Vector3d(f.center[0], f.center[1], f.center[2]) - p).norm() <= 1.01 * c)  // float centres
+              best = std::max(best, f.reliability);
+          }
+        }
+    at_vertex[size_t(v)] = best;
+  });
+  std::vector<float> out(mesh.faces.size());
+  for (size_t t = 0; t < mesh.faces.size(); ++t) {
+    const auto& f = mesh.faces[t];
+    out[t] = std::max({at_vertex[size_t(f[0])], at_vertex[size_t(f[1])], at_vertex[size_t(f[2])]});
+  }
+  return out;
+}
+
 }  // namespace
 
 struct ModelRenderer::Programs {
@@ -499,6 +545,20 @@ Result<std::unique_ptr<ModelRenderer>> ModelRenderer::create(const Model& model,
       continue;
     }
     if (mesh->faces.empty()) continue;
+    if (k == 0) {
+      // Most reliable first: the triangles at or above a threshold are a prefix.
+      const auto rel = triangle_reliability(*mesh, model);
+      std::vector<uint32_t> order(rel.size());
+      for (uint32_t t = 0; t < order.size(); ++t) order[t] = t;
+      std::stable_sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) { return rel[a] > rel[b]; });
+      std::vector<Eigen::Vector3i> faces(order.size());
+      r->triangle_reliability_.resize(order.size());
+      for (size_t t = 0; t < order.size(); ++t) {
+        faces[t] = mesh->faces[order[t]];
+        r->triangle_reliability_[t] = rel[order[t]];
+      }
+      mesh->faces = std::move(faces);
+    }
     GpuMesh& g = r->meshes_[k];
     glGenVertexArrays(1, &g.vao);
     glBindVertexArray(g.vao);
@@ -574,13 +634,46 @@ Result<DrawStats> ModelRenderer::draw(const ViewCamera& view, const DrawOptions&
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, facet_ssbo_);
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, camera_ssbo_);
 
-  const GlProgram& p = mesh_pass ? programs_->mesh : programs_->billboard;
-  glUseProgram(p.id());
-  set_view_uniforms(p, view, near_m, float(far_m));
-  glUniform1i(p.uniform("u_color"), 0);
-  glUniform1i(p.uniform("u_dist"), 1);
-  glUniform2f(p.uniform("u_tex_size"), float(texture_width_), float(texture_height_));
-  glUniform1i(p.uniform("u_by_camera"), o.color_by_camera ? 1 : 0);
+  auto use = [&](const GlProgram& p) {
+    glUseProgram(p.id());
+    set_view_uniforms(p, view, near_m, float(far_m));
+    glUniform1i(p.uniform("u_color"), 0);
+    glUniform1i(p.uniform("u_dist"), 1);
+    glUniform2f(p.uniform("u_tex_size"), float(texture_width_), float(texture_height_));
+    glUniform1i(p.uniform("u_by_camera"), o.color_by_camera ? 1 : 0);
+  };
+  // `nearest`: the mesh's fragments ask only the input cameras that look
+  // most the view's way (the k best by angle at a fragment are among them
+  // but where the surface turns sharply), not every camera.
+  auto draw_mesh = [&](const GpuMesh& g, size_t triangles, bool nearest) {
+    const GlProgram& p = programs_->mesh;
+    use(p);
+    const int k = std::clamp(o.selection.cameras, 1, kMaxBlendCameras);
+    std::vector<int> list;
+    if (nearest) {
+      const Eigen::Vector3d z = view.world_from_camera.linear().col(2);
+      std::vector<std::pair<double, int>> by_angle;
+      for (size_t i = 0; i < model_.cameras.size(); ++i)
+        if (!model_.cameras[i].texture.empty())
+          by_angle.push_back({angle_between(z, model_.cameras[i].world_from_camera.linear().col(2)), int(i)});
+      const size_t m = std::min<size_t>({by_angle.size(), size_t(2 * k + 2), 16});
+      std::partial_sort(by_angle.begin(), by_angle.begin() + std::ptrdiff_t(m), by_angle.end());
+      for (size_t i = 0; i < m; ++i) list.push_back(by_angle[i].second);
+    }
+    glUniform1i(p.uniform("u_use_list"), nearest ? 1 : 0);
+    if (nearest && !list.empty()) glUniform1iv(p.uniform("u_cam_list[0]"), GLsizei(list.size()), list.data());
+    glUniform1i(p.uniform("u_camera_count"), nearest ? int(list.size()) : int(model_.cameras.size()));
+    glUniform1i(p.uniform("u_k"), k);
+    // The patch mesh lies within about a voxel of the surface the distances
+    // were cast against; twice that counts as visible.
+    glUniform1f(p.uniform("u_tol"), float(2 * model_.voxel_size_m));
+    glUniform1i(p.uniform("u_flat"), 0);
+    if (o.wireframe) glPolygonMode(GL_FRONT_AND_BACK, GL_LINE);
+    glBindVertexArray(g.vao);
+    glDrawElements(GL_TRIANGLES, GLsizei(triangles * 3), GL_UNSIGNED_INT, nullptr);
+    if (o.wireframe) glPolygonMode(GL_FRONT_AND_BACK, GL_FILL);
+    st.triangles = triangles;
+  };
   if (o.geometry == DrawOptions::Geometry::kBillboards) {
     SelectionOptions so = o.selection;
     so.near_m = near_m;
@@ -588,6 +681,22 @@ Result<DrawStats> ModelRenderer::draw(const ViewCamera& view, const DrawOptions&
     lo.backface_cos = so.backface_cos;
     if (!so.frustum_cull || !so.backface_cull) lo.enabled = false;  // "draw everything" means every model facet
     st.lod = hierarchy_.select(view, lo, near_m, candidates_);
+    // Reliable geometry from the patch mesh: its triangles at or above the
+    // threshold first (a prefix, most reliable first), and the billboards of
+    // facets that reliable left out.
+    if (o.mesh_reliability > 0 && has_mesh()) {
+      const float R = float(o.mesh_reliability);
+      const size_t n = size_t(std::partition_point(triangle_reliability_.begin(), triangle_reliability_.end(),
+                                                   [&](float r) { return r >= R; }) -
+                              triangle_reliability_.begin());
+      if (n) draw_mesh(meshes_[0], n, true);
+      const auto& least = hierarchy_.least_reliability();
+      const size_t before = candidates_.size();
+      std::erase_if(candidates_, [&](uint32_t i) { return least[i] >= R; });
+      st.facets_on_mesh = before - candidates_.size();
+    }
+    const GlProgram& p = programs_->billboard;
+    use(p);
     st.selection = select_facets(FacetSet{hierarchy_.facets(), hierarchy_.facet_cameras(), &candidates_}, model_.cameras,
                                  view, so, instances_);
     st.selection.facets = model_.facets.size();
@@ -609,18 +718,8 @@ Result<DrawStats> ModelRenderer::draw(const ViewCamera& view, const DrawOptions&
     glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(instances_.size() * sizeof(FacetInstance)), instances_.data(), GL_STREAM_DRAW);
     if (!instances_.empty()) glDrawArraysInstanced(GL_TRIANGLE_STRIP, 0, 4, GLsizei(instances_.size()));
   } else {
-    glUniform1i(p.uniform("u_camera_count"), int(model_.cameras.size()));
-    glUniform1i(p.uniform("u_k"), std::clamp(o.selection.cameras, 1, kMaxBlendCameras));
-    // The patch mesh lies within about a voxel of the surface the distances
-    // were cast against; twice that counts as visible.
-    glUniform1f(p.uniform("u_tol"), float(2 * model_.voxel_size_m));
-    glUniform1i(p.uniform("u_flat"), 0);
-    if (o.wireframe) glPolygonMode(GL_FRONT_AND_BACK, GL_LINE);
     const GpuMesh& g = meshes_[o.geometry == DrawOptions::Geometry::kSurface ? 1 : 0];
-    glBindVertexArray(g.vao);
-    glDrawElements(GL_TRIANGLES, GLsizei(g.triangles * 3), GL_UNSIGNED_INT, nullptr);
-    if (o.wireframe) glPolygonMode(GL_FRONT_AND_BACK, GL_FILL);
-    st.triangles = g.triangles;
+    draw_mesh(g, g.triangles, false);
   }
   glBindVertexArray(0);
   st.cpu_ms = clock.seconds() * 1e3;

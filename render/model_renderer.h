@@ -61,6 +61,10 @@ struct DrawOptions {
   int refine_steps = 2;          // texel refinement along the view ray (0 = the seed's texel at the billboard point)
   SelectionOptions selection;
   LodOptions lod;                // octree level of detail of the billboards (render/facet_lod.h)
+  // Billboards only: > 0 draws the patch mesh where the geometry is reliable
+  // (its triangles near a facet of at least this reliability) and leaves
+  // out the billboards whose facets all reach it; 0: billboards everywhere.
+  double mesh_reliability = 0;
   float background[3] = {0.f, 0.f, 0.f};
   double near_m = 0.01, far_m = 100.0;
   // Drawn first into the same depth buffer: the panorama as backdrop and the
@@ -71,7 +75,8 @@ struct DrawOptions {
 struct DrawStats {
   SelectionStats selection;   // billboards
   LodStats lod;
-  size_t triangles = 0;       // mesh
+  size_t triangles = 0;       // mesh (with mesh_reliability: the reliable triangles drawn)
+  size_t facets_on_mesh = 0;  // with mesh_reliability: selected billboards left to the mesh
   double cpu_ms = 0;          // selection + upload + submit
   double frame_ms = 0;        // until the image is finished (glFinish)
   bool environment_drawn = false, envmap_bound = false;
@@ -110,7 +115,8 @@ class ModelRenderer {
     unsigned vao = 0, vbo = 0, ibo = 0;
     size_t triangles = 0;
   };
-  GpuMesh meshes_[2];  // patch mesh, fused surface
+  GpuMesh meshes_[2];  // patch mesh (most reliable triangles first), fused surface
+  std::vector<float> triangle_reliability_;  // per patch-mesh triangle, as uploaded (descending)
   size_t texture_bytes_ = 0;
   bool has_reliable_ = false;  // any facet with measured depth
   int texture_width_ = 0, texture_height_ = 0;

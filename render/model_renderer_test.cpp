@@ -13,6 +13,7 @@
 #include "core/atomic_file.h"
 #include "core/image_io.h"
 #include "core/image_metrics.h"
+#include "core/mesh.h"
 #include "render/facet_selection.h"
 #include "render/gl_context.h"
 #include "render/model_eval.h"
@@ -369,6 +370,69 @@ TEST(Billboards, OneCameraZeroFacetsAndFacetsNoCameraSees) {
     const SelectionStats st = select_facets(t.model, arc_camera(0), {}, out);
     EXPECT_EQ(st.no_camera, (t.model.facets.size() + 1) / 2);
     EXPECT_EQ(st.drawn + st.no_camera, t.model.facets.size());
+  }
+}
+
+// The square as a patch mesh (a grid of w-sized cells, two triangles each),
+// its left half (x < 0) reliable geometry, the right half fuzzy evidence.
+TestModel make_hybrid_model() {
+  TestModel t = make_model("hybrid", kArc);
+  for (auto& f : t.model.facets) f.reliability = f.center[0] < 0 ? 0.9f : 0.2f;
+  const int n = int(std::floor(kHalf / kVoxel));
+  Mesh mesh;
+  for (int j = -n; j <= n; ++j)
+    for (int i = -n; i <= n; ++i) mesh.vertices.emplace_back(float(i * kVoxel), float(j * kVoxel), 0.f);
+  const int side = 2 * n + 1;
+  for (int j = 0; j + 1 < side; ++j)
+    for (int i = 0; i + 1 < side; ++i) {
+      const int a = j * side + i;
+      mesh.faces.emplace_back(a, a + 1, a + side + 1);
+      mesh.faces.emplace_back(a, a + side + 1, a + side);
+    }
+  EXPECT_TRUE(write_ply_mesh(t.dir / "patch_mesh.ply", mesh));
+  t.model.patch_mesh = "patch_mesh.ply";
+  EXPECT_TRUE(save_model(t.dir, t.model));
+  return t;
+}
+
+TEST(Hybrid, PatchMeshWhereReliableBillboardsElsewhere) {
+  const TestModel t = make_hybrid_model();
+  Gl g = open(t);
+  ASSERT_TRUE(g.renderer);
+  ASSERT_TRUE(g.renderer->has_mesh());
+  const size_t total_triangles = 2 * size_t(std::pow(2 * std::floor(kHalf / kVoxel), 2));
+  for (double deg : {0.0, 7.5}) {
+    const ViewCamera v = arc_camera(deg);
+    DrawOptions bb = background_options();
+    DrawStats st_bb, st_h, st_all, st_none;
+    const ImageU8 img_bb = draw(g, v, bb, &st_bb);
+    // Threshold 0.5: the left half from the mesh (its triangles and a cell's
+    // overlap into the right), the right half's billboards as before.
+    DrawOptions hybrid = bb;
+    hybrid.mesh_reliability = 0.5;
+    const ImageU8 img_h = draw(g, v, hybrid, &st_h);
+    EXPECT_GT(st_h.triangles, total_triangles / 2) << deg;
+    EXPECT_LT(st_h.triangles, total_triangles * 6 / 10) << deg;
+    size_t left = 0;
+    for (const auto& f : t.model.facets) left += f.center[0] < 0;
+    EXPECT_EQ(st_h.facets_on_mesh, left) << deg;
+    EXPECT_EQ(st_h.selection.drawn + st_h.facets_on_mesh, st_bb.selection.drawn) << deg;
+    const double p_bb = masked_psnr(img_bb, v), p_h = masked_psnr(img_h, v);
+    RecordProperty(fmt::format("psnr_{}_billboards", deg), fmt::format("{:.2f}", p_bb));
+    RecordProperty(fmt::format("psnr_{}_hybrid", deg), fmt::format("{:.2f}", p_h));
+    // A flat square's mesh is its exact geometry: no worse than billboards, no gap at the seam.
+    EXPECT_GE(p_h, std::min(p_bb, 38.0) - 0.5) << deg;
+    // Above every facet's reliability: billboards everywhere, the same pixels.
+    DrawOptions none = bb;
+    none.mesh_reliability = 0.95;
+    EXPECT_EQ(draw(g, v, none, &st_none).data, img_bb.data) << deg;
+    EXPECT_EQ(st_none.triangles, 0u);
+    // Below every facet's: the mesh everywhere, no billboard left.
+    DrawOptions all = bb;
+    all.mesh_reliability = 0.1;
+    draw(g, v, all, &st_all);
+    EXPECT_EQ(st_all.triangles, total_triangles) << deg;
+    EXPECT_EQ(st_all.selection.drawn, 0u) << deg;
   }
 }
 
