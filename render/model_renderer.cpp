@@ -642,9 +642,10 @@ Result<DrawStats> ModelRenderer::draw(const ViewCamera& view, const DrawOptions&
     glUniform2f(p.uniform("u_tex_size"), float(texture_width_), float(texture_height_));
     glUniform1i(p.uniform("u_by_camera"), o.color_by_camera ? 1 : 0);
   };
-  // `nearest`: the mesh's fragments ask only the input cameras that look
-  // most the view's way (the k best by angle at a fragment are among them
-  // but where the surface turns sharply), not every camera.
+  // `nearest`: the mesh's fragments ask only the k+1 input cameras whose
+  // axes are nearest the view's (the k best by angle at a fragment, but
+  // near the silhouette or for a wide field of view), not every camera:
+  // bench render measured k+1 both faster and no less sharp than 2k+2.
   auto draw_mesh = [&](const GpuMesh& g, size_t triangles, bool nearest) {
     const GlProgram& p = programs_->mesh;
     use(p);
@@ -656,7 +657,7 @@ Result<DrawStats> ModelRenderer::draw(const ViewCamera& view, const DrawOptions&
       for (size_t i = 0; i < model_.cameras.size(); ++i)
         if (!model_.cameras[i].texture.empty())
           by_angle.push_back({angle_between(z, model_.cameras[i].world_from_camera.linear().col(2)), int(i)});
-      const size_t m = std::min<size_t>({by_angle.size(), size_t(2 * k + 2), 16});
+      const size_t m = std::min<size_t>({by_angle.size(), size_t(k + 1), 16});
       std::partial_sort(by_angle.begin(), by_angle.begin() + std::ptrdiff_t(m), by_angle.end());
       for (size_t i = 0; i < m; ++i) list.push_back(by_angle[i].second);
     }
@@ -670,7 +671,18 @@ Result<DrawStats> ModelRenderer::draw(const ViewCamera& view, const DrawOptions&
     glUniform1i(p.uniform("u_flat"), 0);
     if (o.wireframe) glPolygonMode(GL_FRONT_AND_BACK, GL_LINE);
     glBindVertexArray(g.vao);
+    if (nearest && !o.wireframe) {
+      // Depth first (the triangles come in reliability order, not front to
+      // back), then each covered pixel is shaded once.
+      glColorMask(GL_FALSE, GL_FALSE, GL_FALSE, GL_FALSE);
+      glUniform1i(p.uniform("u_flat"), 1);
+      glDrawElements(GL_TRIANGLES, GLsizei(triangles * 3), GL_UNSIGNED_INT, nullptr);
+      glColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
+      glUniform1i(p.uniform("u_flat"), 0);
+      glDepthFunc(GL_LEQUAL);
+    }
     glDrawElements(GL_TRIANGLES, GLsizei(triangles * 3), GL_UNSIGNED_INT, nullptr);
+    glDepthFunc(GL_LESS);
     if (o.wireframe) glPolygonMode(GL_FRONT_AND_BACK, GL_FILL);
     st.triangles = triangles;
   };

@@ -28,6 +28,14 @@
 // weights; where no camera sees it, the nearest camera by angle whose image
 // contains it (a baseline mesh has no holes).
 //
+// Hybrid (billboards with mesh_reliability R > 0, the detail the LOD switches
+// to where geometry is reliable): the patch triangles with a facet of
+// reliability >= R within a base voxel of a corner are drawn first, through
+// the mesh pass but asking only the k+1 cameras whose axes are nearest the
+// view's; then the billboards of every selected facet or node whose facets
+// do not all reach R. The triangles are uploaded most reliable first, so
+// those drawn are one prefix of the index buffer.
+//
 // Views are drawn through their lens model too (vertices are distorted), so
 // rendering at an input camera's view reproduces its photo pixel for pixel.
 #pragma once

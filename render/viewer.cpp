@@ -91,7 +91,7 @@ const char* kHelp =
     "  C depth clipping   1-4 cameras blended   M billboards / patch mesh / surface   B colour by camera\n"
     "  W wireframe (mesh)   L culling   N / shift+N next / previous input camera   R reset\n"
     "  O octree LOD   [ / ] halve / double its thresholds T_s T_b T_e   G visual-field LOD around the centre\n"
-    "  K leave out blended cameras below 10 % share\n"
+    "  K leave out blended cameras below 10 % share   T patch mesh where reliability >= 0.2 / 0.5 / 0.8 / off\n"
     "  P save view (view_NNN.json)   S screenshot (screenshot_NNN.png)   H help   Q / Esc quit\n";
 
 std::string lod_status(const DrawOptions& d, const DrawStats& st) {
@@ -100,6 +100,8 @@ std::string lod_status(const DrawOptions& d, const DrawStats& st) {
     t += fmt::format(" | LOD T_s {:.2g} T_b {:.2g} T_e {:.2g}: {} coarse for {}", d.lod.shape_px, d.lod.luminance, d.lod.texel_px,
                      st.lod.node_billboards, st.lod.facets_replaced);
   if (d.selection.min_weight > 0) t += fmt::format(" | {} blends < {:.2g} left out", st.selection.cameras_pruned, d.selection.min_weight);
+  if (d.mesh_reliability > 0)
+    t += fmt::format(" | mesh at reliability >= {:.2g}: {} triangles for {}", d.mesh_reliability, st.triangles, st.facets_on_mesh);
   return t;
 }
 
@@ -142,6 +144,11 @@ void on_key(GLFWwindow* w, int key, int, int action, int mods) {
       if (s->draw.lod.field) s->draw.lod.enabled = true;
       break;
     case GLFW_KEY_K: s->draw.selection.min_weight = s->draw.selection.min_weight > 0 ? 0.0 : 0.1; break;
+    case GLFW_KEY_T: {  // off -> 0.2 -> 0.5 -> 0.8 -> off
+      const double r = s->draw.mesh_reliability;
+      s->draw.mesh_reliability = r <= 0 ? 0.2 : r < 0.35 ? 0.5 : r < 0.65 ? 0.8 : 0.0;
+      break;
+    }
     case GLFW_KEY_R: s->orbit = make_orbit(*s->model); break;
     case GLFW_KEY_P: s->save_view_now = true; break;
     case GLFW_KEY_S: s->screenshot_now = true; break;
