@@ -567,6 +567,12 @@ int bench_render(const fs::path& out, const std::string& scene_in) {
     auto built = run_reconstruct_job(job);
     if (!built) return error(built.error().message);
     rep.counts["facets_" + scene] = built->counts.at("facets");
+    if (auto m = load_model(model); m && m->voxel_size_m > 0 && !m->bounds.isEmpty()) {
+      // The model's size in base voxels along its longest side (the "128^3-voxel model").
+      const double cells = m->bounds.sizes().maxCoeff() / m->voxel_size_m;
+      rep.counts["voxels_per_side_" + scene] = std::round(cells);
+      std::fprintf(stderr, "%s: %zu facets, %.0f base voxels along the longest side\n", scene.c_str(), m->facets.size(), cells);
+    }
     // Held-out PSNR per setting, then every setting's frame time on one
     // loaded model, interleaved frame by frame (time_orbit).
     std::vector<const Setting*> ok;
@@ -624,6 +630,36 @@ int bench_render(const fs::path& out, const std::string& scene_in) {
       if (ratio < 1 && delta > -0.5) rep.counts[fmt::format("lod_faster_at_equal_psnr_{}_{}", scene, label)] = 1;
       std::fprintf(stderr, "%s, %s against %s: time x%.3f (paired median), PSNR %+.2f dB\n", scene.c_str(), label.c_str(),
                    no_lod.c_str(), ratio, delta);
+    }
+    // The first scene again at 128 base voxels along the model's longest
+    // side (a 128^3-voxel model): frame times of billboards, the coarsest
+    // octree LOD and the hybrid, paired frame by frame.
+    if (scene != scenes.front()) continue;
+    auto m = load_model(model);
+    if (!m || !(m->voxel_size_m > 0) || m->bounds.isEmpty()) continue;
+    ReconstructJob fine = job;
+    fine.out = out / ("model_" + scene + "_128");
+    fine.voxel_m = m->bounds.sizes().maxCoeff() / 128;
+    auto fine_built = run_reconstruct_job(fine);
+    if (!fine_built) return error(fine_built.error().message);
+    const std::vector<std::string> fine_labels{no_lod, "octree LOD T_s=4 T_b=10 T_e=8, min weight 0.1",
+                                               "hybrid: patch mesh at reliability >= 0.2, billboards elsewhere"};
+    std::vector<DrawOptions> fine_draws;
+    for (const auto& l : fine_labels)
+      for (const auto& st : settings)
+        if (st.label == l) fine_draws.push_back(st.draw);
+    auto fine_timing = time_orbit(fine.out, fine_draws, 1280, 720, 12);
+    if (!fine_timing) return error(fine_timing.error().message);
+    rep.counts["facets_" + scene + "_128"] = fine_built->counts.at("facets");
+    for (size_t k = 0; k < fine_draws.size(); ++k) {
+      const auto& ft = (*fine_timing)[k];
+      rep.counts[fmt::format("frame_ms_{}_128_{}", scene, fine_labels[k])] = ft.median_ms;
+      std::vector<double> ratios;
+      for (size_t f = 0; f < ft.frame_ms.size(); ++f) ratios.push_back(ft.frame_ms[f] / (*fine_timing)[0].frame_ms[f]);
+      if (k > 0) rep.counts[fmt::format("lod_time_ratio_{}_128_{}", scene, fine_labels[k])] = median(ratios);
+      std::fprintf(stderr, "%s at 128 voxels per side (%.0f facets), %s: %.1f ms per 1280x720 frame, x%.3f of %s (paired median)\n",
+                   scene.c_str(), fine_built->counts.at("facets"), fine_labels[k].c_str(), ft.median_ms, median(ratios),
+                   no_lod.c_str());
     }
   }
   if (auto st = t.write_csv(out / "render.csv"); !st) return error(st.error().message);
