@@ -420,6 +420,7 @@ TEST(Hybrid, PatchMeshWhereReliableBillboardsElsewhere) {
     const double p_bb = masked_psnr(img_bb, v), p_h = masked_psnr(img_h, v);
     RecordProperty(fmt::format("psnr_{}_billboards", deg), fmt::format("{:.2f}", p_bb));
     RecordProperty(fmt::format("psnr_{}_hybrid", deg), fmt::format("{:.2f}", p_h));
+    RecordProperty(fmt::format("triangles_{}_hybrid", deg), std::to_string(st_h.triangles));
     // A flat square's mesh is its exact geometry: no worse than billboards, no gap at the seam.
     EXPECT_GE(p_h, std::min(p_bb, 38.0) - 0.5) << deg;
     // Above every facet's reliability: billboards everywhere, the same pixels.
