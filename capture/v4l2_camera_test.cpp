@@ -9,6 +9,9 @@
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <limits>
 #include <opencv2/imgproc.hpp>
 
 #include "capture/pixel_formats.h"
@@ -273,6 +276,21 @@ TEST(V4l2Replay, DivergenceAndDamageAreClearErrors) {
   auto bad = make_replay_v4l2_io(cut);
   ASSERT_FALSE(bad);
   EXPECT_NE(bad.error().message.find("truncated"), std::string::npos) << bad.error().message;
+  // A result that is neither a count nor an errno (fuzz: INT_MIN, which
+  // the driver negated into an overflow) is rejected on load.
+  std::string rec;
+  {
+    std::ifstream in(dir / "z16_160x120.v4l2rec", std::ios::binary);
+    rec.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  const int64_t int_min = std::numeric_limits<int32_t>::min();
+  std::memcpy(rec.data() + 8 + 9, &int_min, 8);  // the first record's result
+  {
+    std::ofstream(cut, std::ios::binary) << rec;
+  }
+  bad = make_replay_v4l2_io(cut);
+  ASSERT_FALSE(bad);
+  EXPECT_NE(bad.error().message.find("neither a count nor an errno"), std::string::npos) << bad.error().message;
   fs::remove(cut);
 }
 

@@ -7,6 +7,7 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <limits>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
@@ -262,6 +263,12 @@ Result<std::unique_ptr<V4l2Io>> make_replay_v4l2_io(const fs::path& path) {
     std::memcpy(&n, b.data() + p + 17, 4);
     p += 21;
     if (kind < kOpen || kind > kClose) return fail("'" + path.string() + "': unknown record kind " + std::to_string(kind));
+    // A call returns a count or descriptor (>= 0) or a negated errno (the
+    // kernel's are 1..4095); anything else is damage, and the driver would
+    // negate it (fuzz: INT_MIN, whose negation overflows).
+    if (r.result < -4095 || r.result > std::numeric_limits<int32_t>::max())
+      return fail("'" + path.string() + "': record " + std::to_string(records.size()) + " returns " + std::to_string(r.result) +
+                  ", neither a count nor an errno");
     if (n > b.size() - p) return fail("'" + path.string() + "': truncated record at byte " + std::to_string(p));
     r.kind = static_cast<Kind>(kind);
     r.bytes = b.substr(p, n);
