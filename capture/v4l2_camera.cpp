@@ -52,7 +52,8 @@ Result<std::unique_ptr<V4l2Camera>> V4l2Camera::open(std::unique_ptr<V4l2Io> io,
   if (int r = cam->io_->ioctl(VIDIOC_QUERYCAP, &cap); r < 0)
     return std::unexpected(cam->fail_errno("QUERYCAP", -r).error());
   const uint32_t caps = (cap.capabilities & V4L2_CAP_DEVICE_CAPS) ? cap.device_caps : cap.capabilities;
-  cam->card_ = reinterpret_cast<const char*>(cap.card);
+  // The kernel ends the name with a NUL; a damaged recording need not (fuzz).
+  cam->card_.assign(reinterpret_cast<const char*>(cap.card), strnlen(reinterpret_cast<const char*>(cap.card), sizeof cap.card));
   if (!(caps & V4L2_CAP_VIDEO_CAPTURE)) return fail(path + " (" + cam->card_ + ") is not a video capture device");
   if (!(caps & V4L2_CAP_STREAMING)) return fail(path + " (" + cam->card_ + ") does not support streaming I/O");
   for (uint32_t i = 0;; ++i) {
