@@ -567,11 +567,13 @@ int bench_render(const fs::path& out, const std::string& scene_in) {
     auto built = run_reconstruct_job(job);
     if (!built) return error(built.error().message);
     rep.counts["facets_" + scene] = built->counts.at("facets");
-    if (auto m = load_model(model); m && m->voxel_size_m > 0 && !m->bounds.isEmpty()) {
-      // The model's size in base voxels along its longest side (the "128^3-voxel model").
-      const double cells = m->bounds.sizes().maxCoeff() / m->voxel_size_m;
+    // The model's size in base voxels along its longest side (the "128^3-voxel model").
+    const auto loaded = load_model(model);
+    const bool sized = loaded && loaded->voxel_size_m > 0 && !loaded->bounds.isEmpty();
+    if (sized) {
+      const double cells = loaded->bounds.sizes().maxCoeff() / loaded->voxel_size_m;
       rep.counts["voxels_per_side_" + scene] = std::round(cells);
-      std::fprintf(stderr, "%s: %zu facets, %.0f base voxels along the longest side\n", scene.c_str(), m->facets.size(), cells);
+      std::fprintf(stderr, "%s: %zu facets, %.0f base voxels along the longest side\n", scene.c_str(), loaded->facets.size(), cells);
     }
     // Held-out PSNR per setting, then every setting's frame time on one
     // loaded model, interleaved frame by frame (time_orbit).
@@ -634,12 +636,10 @@ int bench_render(const fs::path& out, const std::string& scene_in) {
     // The first scene again at 128 base voxels along the model's longest
     // side (a 128^3-voxel model): frame times of billboards, the coarsest
     // octree LOD and the hybrid, paired frame by frame.
-    if (scene != scenes.front()) continue;
-    auto m = load_model(model);
-    if (!m || !(m->voxel_size_m > 0) || m->bounds.isEmpty()) continue;
+    if (scene != scenes.front() || !sized) continue;
     ReconstructJob fine = job;
     fine.out = out / ("model_" + scene + "_128");
-    fine.voxel_m = m->bounds.sizes().maxCoeff() / 128;
+    fine.voxel_m = loaded->bounds.sizes().maxCoeff() / 128;
     auto fine_built = run_reconstruct_job(fine);
     if (!fine_built) return error(fine_built.error().message);
     const std::vector<std::string> fine_labels{no_lod, "octree LOD T_s=4 T_b=10 T_e=8, min weight 0.1",

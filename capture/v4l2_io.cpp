@@ -7,10 +7,10 @@
 #include <unistd.h>
 
 #include <cerrno>
-#include <limits>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
+#include <limits>
 #include <map>
 #include <vector>
 

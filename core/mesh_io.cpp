@@ -52,7 +52,6 @@ Status check_exists(const fs::path& path) {
 struct PlyProperty {
   std::string name;
   bool list = false;
-  std::string count_type, item_type;  // list properties only
 };
 struct PlyElement {
   std::string name;
@@ -173,13 +172,7 @@ Status check_ply_header(const fs::path& path) {
     }
     if (key == "property") {
       if (elements.empty()) return fail(where + "a property before any element");
-      PlyProperty p;
-      p.list = k == 5;
-      p.name = words[k - 1];
-      if (p.list) {
-        p.count_type = words[2];
-        p.item_type = words[3];
-      }
+      const PlyProperty p{words[k - 1], k == 5};
       if (p.list && elements.back().name == "vertex")
         // PCL asserts on a vertex list whose length changes from vertex to vertex.
         return fail(where + "list properties in the vertex element are not supported");
@@ -205,18 +198,17 @@ Status check_ply_header(const fs::path& path) {
       }
     }
   }
-  uint64_t vertices = 0;
-  const PlyElement* grid = nullptr;
+  const PlyElement *vertex = nullptr, *grid = nullptr;
   for (const auto& e : elements) {
-    if (e.name == "vertex") vertices = e.count;
+    if (e.name == "vertex") vertex = &e;
     if (e.name == "range_grid") grid = &e;
   }
+  const uint64_t vertices = vertex ? vertex->count : 0;
   // PCL sizes its point buffer to width x height and writes the vertices into
   // it in file order (fuzz: num_cols 12 x num_rows 4 with more vertices
   // tripped its bounds assertion). An organised cloud has a vertex per cell,
   // or a range grid that says which vertex each cell holds.
-  const bool any_vertex = std::any_of(elements.begin(), elements.end(), [](const PlyElement& e) { return e.name == "vertex"; });
-  if (any_vertex && width * height != vertices && !(grid && width * height == grid->count))
+  if (vertex && width * height != vertices && !(grid && width * height == grid->count))
     return fail(at + "PLY num_cols x num_rows (" + std::to_string(width) + " x " + std::to_string(height) +
                 ") is neither the vertex count (" + std::to_string(vertices) + ") nor a range grid's cell count");
   if (grid) {
