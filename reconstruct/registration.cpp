@@ -128,6 +128,7 @@ void find_pair(PairData& pd, const LevelView& va, const LevelView& vb, const Eig
   const Eigen::Vector3f t = b_from_a.translation().cast<float>();
   auto match = [&](size_t s) {
     const int i = va.sources[s];
+    if (va.cloud.edge[i]) return -1;  // neither end of a correspondence is an edge
     const Eigen::Vector3f x = r * va.cloud.points[i] + t;
     const int j = vb.index->nearest(x, reach);
     if (j < 0 || vb.cloud.edge[j]) return -1;
@@ -324,7 +325,7 @@ Status run_levels(Run& run, PoseState& st) {
     for (int a = 0; a < n; ++a)
       for (int b = a + 1; b < n; ++b)
         if (is_variable(run.o, a) || is_variable(run.o, b)) candidates.emplace_back(a, b);
-    const size_t cap = 800;  // correspondences per ordered pair in the problem
+    const size_t cap = static_cast<size_t>(std::max(1, run.o.max_correspondences_per_pair));
     // Coarse levels end when the poses move by a twentieth of their voxel.
     const bool last = level + 1 == run.voxels.size();
     const double tol_m = last ? run.o.converged_m : std::max(run.o.converged_m, 0.05 * voxel);

@@ -1,9 +1,9 @@
 // Registration of the real Stanford bunny range scans (../shared/data):
-// from bun.conf perturbed by 5 deg and 5 mm per view, the recovered poses
-// match the file's: each ring scan relative to its ring neighbours within
-// 0.3 deg and 1 mm, relative to bun000 within 0.4 deg (measured: up to
-// 0.32 deg for bun180, where our fit's point-to-plane RMS is lower than the
-// file's own), the other scans to the same or flagged.
+// from bun.conf perturbed by 5 deg and 5 mm per view (five seeds), the
+// recovered poses match the file's within 0.3 deg and 1 mm, relative to
+// bun000 and relative to each ring neighbour; the top, chin and ear scans to
+// the same or flagged. Measured over ten seeds: at most 0.27 deg (bun180),
+// 0.28 deg (top2) and 0.18 mm.
 #include <gtest/gtest.h>
 
 #include <unistd.h>
@@ -37,7 +37,7 @@ TEST(StanfordRegistration, PerturbedBunnyReturnsToTheConfPoses) {
   for (size_t i = 0; i < in->views.size(); ++i)
     if (in->views[i].name == "bun000.ply") fixed = static_cast<int>(i);
   ASSERT_GE(fixed, 0);
-  for (uint64_t seed : {1, 2, 3}) {
+  for (uint64_t seed : {1, 2, 3, 4, 5}) {
     SCOPED_TRACE("seed " + std::to_string(seed));
     auto views = in->views;
     const auto start = perturb_poses(in->given, 5, 0.005, seed, centre, fixed);
@@ -53,7 +53,7 @@ TEST(StanfordRegistration, PerturbedBunnyReturnsToTheConfPoses) {
       std::printf("seed %d %-12s %.3f deg %.3f mm  rms %.3f mm overlap %.2f %s\n", int(seed), views[i].name.c_str(),
                   e.rotation_deg[i], 1e3 * e.translation_m[i], 1e3 * r->views[i].rms_m, r->views[i].overlap,
                   r->views[i].note.c_str());
-      const bool within = e.rotation_deg[i] < 0.4 && e.translation_m[i] < 0.001;
+      const bool within = e.rotation_deg[i] < 0.3 && e.translation_m[i] < 0.001;
       if (ring) {
         EXPECT_TRUE(within) << views[i].name << ": " << e.rotation_deg[i] << " deg, " << e.translation_m[i] << " m";
         EXPECT_FALSE(r->views[i].flagged) << views[i].name << ": " << r->views[i].note;

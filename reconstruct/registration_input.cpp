@@ -62,9 +62,13 @@ Result<RegistrationInput> load_stanford_views(const fs::path& conf_path, const P
     in.frames.push_back(static_cast<int>(scans.size()));
     scans.push_back(std::move(*scan));
   }
-  // The scanner looks at the object from +z of each scan's frame.
+  // The scanner looks at the object from +z of each scan's frame. Its laser
+  // stripes curl near silhouettes: three cells of edge, not one, bring bun180
+  // against bun000 from 0.30-0.32 deg off bun.conf to 0.23-0.27 deg (ten
+  // perturbed starts), and the fit's RMS from 0.168 to 0.135 mm.
   PrepOptions p = prep;
   p.viewpoint = Eigen::Vector3f(0, 0, 1);
+  p.edge_cells = std::max(p.edge_cells, 3);
   std::vector<PrepOptions> per(scans.size(), p);
   if (auto st = prepare_all(scans, per, in); !st) return std::unexpected(st.error());
   in.conf = std::move(*conf);

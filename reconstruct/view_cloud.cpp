@@ -47,6 +47,7 @@ Eigen::Vector3f facing(Eigen::Vector3f n, const Eigen::Vector3f& p, const Eigen:
 void grid_normals(const PointScan& scan, const std::vector<uint8_t>& keep, const PrepOptions& o,
                   ViewCloud& out, PrepStats& st) {
   const int W = scan.grid_width, H = scan.grid_height, r = std::max(1, o.grid_radius);
+  const int e = std::max(1, o.edge_cells), window_r = std::max(r, e);
   auto cloud = to_pcl(scan.points);
   const float gap2 = static_cast<float>(o.max_neighbour_gap_m * o.max_neighbour_gap_m);
   auto valid = [&](int x, int y) -> int {
@@ -62,15 +63,15 @@ void grid_normals(const PointScan& scan, const std::vector<uint8_t>& keep, const
       const Eigen::Vector3f& pc = scan.points[static_cast<size_t>(c)];
       window.clear();
       bool edge = false;
-      for (int dy = -r; dy <= r; ++dy)
-        for (int dx = -r; dx <= r; ++dx) {
+      for (int dy = -window_r; dy <= window_r; ++dy)
+        for (int dx = -window_r; dx <= window_r; ++dx) {
           const int i = valid(x + dx, y + dy);
-          const bool near_ring = std::abs(dx) <= 1 && std::abs(dy) <= 1;
+          const int cells = std::max(std::abs(dx), std::abs(dy));
           if (i < 0 || (scan.points[static_cast<size_t>(i)] - pc).squaredNorm() > gap2) {
-            if (near_ring) edge = true;
+            if (cells <= e) edge = true;
             continue;
           }
-          window.push_back(i);
+          if (cells <= r) window.push_back(i);
         }
       Eigen::Vector4f plane;
       float curvature = 0;

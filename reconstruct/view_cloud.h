@@ -36,6 +36,14 @@ struct PrepOptions {
   int normal_k = 16;
   // Grid neighbours farther than this are a depth discontinuity, not surface.
   double max_neighbour_gap_m = 0.01;
+  // On a range grid, a point within this many cells of a hole or a
+  // discontinuity is an edge: kept, but never matched in registration. A
+  // laser-stripe scanner's samples bend away from the surface near a
+  // silhouette (Curless and Levoy's VRIP down-weights them for the same
+  // reason); `load_stanford_views` uses 3. One cell keeps the thin overlap
+  // strips of views far apart, which wider edges would erase (the rig's four
+  // views 90 deg apart).
+  int edge_cells = 1;
   Eigen::Vector3f viewpoint = Eigen::Vector3f::Zero();  // sensor origin, in the scan's frame
 };
 
