@@ -248,67 +248,107 @@ int bench_register(const fs::path& out, int seeds) {
   const fs::path conf = data_dir() / "stanford_bunny" / "bun.conf";
   auto in = load_stanford_views(conf, {});
   if (!in) return error(in.error().message);
-  const std::vector<std::string> ring = {"bun000.ply", "bun045.ply", "bun090.ply",
-                                         "bun180.ply", "bun270.ply", "bun315.ply"};
-  std::vector<RegistrationView> views;
-  std::vector<Eigen::Isometry3d> truth;
-  for (const auto& name : ring)
+  // Ours runs on all ten scans (the top, chin and ear scans tie the ring
+  // together) and on the six ring scans alone; the peer, PCL's ICP chained
+  // view to view, on the ring. Errors are over the ring scans, against bun000.
+  const std::vector<std::string> ring_names = {"bun000.ply", "bun045.ply", "bun090.ply",
+                                               "bun180.ply", "bun270.ply", "bun315.ply"};
+  std::vector<int> ring_index;  // into in->views, in ring order
+  for (const auto& name : ring_names)
     for (size_t i = 0; i < in->views.size(); ++i)
-      if (in->views[i].name == name) views.push_back(in->views[i]), truth.push_back(in->given[i]);
-  if (views.size() != ring.size()) return error(conf.string() + ": the six ring scans are not all there");
-  const Eigen::Vector3d centre = points_centre(views, truth);
+      if (in->views[i].name == name) ring_index.push_back(static_cast<int>(i));
+  if (ring_index.size() != ring_names.size()) return error(conf.string() + ": the six ring scans are not all there");
+  const int fixed = ring_index.front();
+  const Eigen::Vector3d centre = points_centre(in->views, in->given);
+  auto ring_of = [&](const std::vector<Eigen::Isometry3d>& all) {
+    std::vector<Eigen::Isometry3d> r;
+    for (int i : ring_index) r.push_back(all[static_cast<size_t>(i)]);
+    return r;
+  };
+  std::vector<RegistrationView> ring_views;
+  for (int i : ring_index) ring_views.push_back(in->views[static_cast<size_t>(i)]);
+  const std::vector<Eigen::Isometry3d> ring_truth = ring_of(in->given);
+  // Max errors over the ring scans, poses in ring order, bun000 first.
+  auto ring_error = [&](const std::vector<Eigen::Isometry3d>& ring_poses) {
+    return pose_error(ring_poses, ring_truth, centre, 0);
+  };
   SweepTable t;
   t.columns = {"seed", "iterations", "seconds", "max_rot_err_deg", "max_trans_err_mm", "rms_mm"};
   auto rms_at = [&](const std::vector<Eigen::Isometry3d>& poses, double voxel) {
-    auto r = fit_rms(views, poses, voxel);
+    auto r = fit_rms(ring_views, poses, voxel);
     return r ? *r : -1.0;
   };
-  double ours_best = 1e9, icp_best = 1e9, ours_seconds = 0, icp_seconds = 0;
+  double ours_worst = 0, ours_all_views_worst = 0, ring_only_worst = 0, icp_best = 1e9, icp_worst = 0;
+  double ours_seconds = 0, ring_only_seconds = 0, icp_seconds = 0;
   for (int seed = 1; seed <= seeds; ++seed) {
-    const auto start = perturb_poses(truth, 5, 0.005, static_cast<uint64_t>(seed), centre, 0);
-    auto vs = views;
-    for (size_t i = 0; i < vs.size(); ++i) vs[i].initial = start[i];
-    RegistrationOptions o;
-    o.progress = false;
+    const auto start = perturb_poses(in->given, 5, 0.005, static_cast<uint64_t>(seed), centre, fixed);
     double final_voxel = 0.0005;
-    o.on_round = [&](const RegistrationRound& r) {
-      const PoseError e = pose_error(r.poses, truth, centre);
-      t.row_labels.push_back("ours (Ceres, all views), seed " + std::to_string(seed));
-      t.rows.push_back({double(seed), double(r.solver_iterations), r.seconds, e.max_rotation_deg,
-                        1e3 * e.max_translation_m, 1e3 * r.rms_m});
-      final_voxel = r.voxel_m;
+    auto run_ours = [&](std::vector<RegistrationView> vs, const std::vector<Eigen::Isometry3d>& init, int fixed_view,
+                        bool all_ten) -> Result<RegistrationResult> {
+      for (size_t i = 0; i < vs.size(); ++i) vs[i].initial = init[i];
+      RegistrationOptions o;
+      o.progress = false;
+      o.fixed_view = fixed_view;
+      const std::string label = std::string(all_ten ? "ours (Ceres, all ten scans)" : "ours (Ceres, ring scans only)") +
+                                ", seed " + std::to_string(seed);
+      o.on_round = [&](const RegistrationRound& r) {
+        const PoseError e = ring_error(all_ten ? ring_of(r.poses) : r.poses);
+        t.row_labels.push_back(label);
+        t.rows.push_back({double(seed), double(r.solver_iterations), r.seconds, e.max_rotation_deg,
+                          1e3 * e.max_translation_m, 1e3 * r.rms_m});
+        final_voxel = r.voxel_m;
+      };
+      return register_views(vs, o);
     };
-    auto r = register_views(vs, o);
+    auto r = run_ours(in->views, start, fixed, true);
     if (!r) return error(r.error().message);
-    const PoseError eo = pose_error(r->poses, truth, centre);
-    ours_best = std::min(ours_best, eo.max_rotation_deg);
+    const PoseError eo = ring_error(ring_of(r->poses));
+    const PoseError ea = pose_error(r->poses, in->given, centre, fixed);
+    ours_worst = std::max(ours_worst, eo.max_rotation_deg);
+    ours_all_views_worst = std::max(ours_all_views_worst, ea.max_rotation_deg);
     ours_seconds += r->seconds;
+    auto rr = run_ours(ring_views, ring_of(start), 0, false);
+    if (!rr) return error(rr.error().message);
+    const PoseError er = ring_error(rr->poses);
+    ring_only_worst = std::max(ring_only_worst, er.max_rotation_deg);
+    ring_only_seconds += rr->seconds;
+    double icp80 = 0;
     for (int iters : {1, 2, 5, 10, 20, 40, 80}) {
       IcpPeerOptions io;
       io.max_iterations = iters;
       io.voxel_m = final_voxel;
+      auto vs = ring_views;
+      for (size_t i = 0; i < vs.size(); ++i) vs[i].initial = start[static_cast<size_t>(ring_index[i])];
       Stopwatch sw;
       const auto poses = chain_icp(vs, io);
       const double secs = sw.seconds();
-      const PoseError e = pose_error(poses, truth, centre);
-      t.row_labels.push_back("PCL ICP chained, seed " + std::to_string(seed));
+      const PoseError e = ring_error(poses);
+      t.row_labels.push_back("PCL ICP chained (ring), seed " + std::to_string(seed));
       t.rows.push_back({double(seed), double(iters), secs, e.max_rotation_deg, 1e3 * e.max_translation_m,
                         1e3 * rms_at(poses, final_voxel)});
-      if (iters == 80) icp_best = std::min(icp_best, e.max_rotation_deg), icp_seconds += secs;
+      if (iters == 80) icp80 = e.max_rotation_deg, icp_seconds += secs;
     }
-    std::fprintf(stderr, "seed %d: ours %.3f deg in %.1f s; chained ICP (80 iterations) %.3f deg\n", seed,
-                 eo.max_rotation_deg, r->seconds, t.rows.back()[3]);
+    icp_best = std::min(icp_best, icp80), icp_worst = std::max(icp_worst, icp80);
+    std::fprintf(stderr,
+                 "seed %d: ours (all ten) ring %.3f deg, every scan %.3f deg in %.1f s; ours (ring only) %.3f deg in %.1f s; "
+                 "chained ICP (80 iterations) %.3f deg\n",
+                 seed, eo.max_rotation_deg, ea.max_rotation_deg, r->seconds, er.max_rotation_deg, rr->seconds, icp80);
   }
   if (auto st = t.write_csv(out / "register.csv"); !st) return error(st.error().message);
-  PlotSpec spec{"Registration of the Stanford ring scans from 5 deg / 5 mm: error against run time", "seconds",
-                "max rotation error vs bun.conf (deg)", "seconds", {"max_rot_err_deg"}, true, false, true};
+  PlotSpec spec{"Registration of the Stanford bunny from 5 deg / 5 mm: ring error against run time", "seconds",
+                "max rotation error of the ring scans vs bun.conf (deg)", "seconds", {"max_rot_err_deg"}, true, false, true};
   if (auto st = plot_png(t, spec, out / "register.png"); !st) rep.warnings.push_back(st.error().message);
   PlotSpec rms{"Registration: RMS point-to-plane against iterations", "iterations", "RMS (mm)", "iterations",
                {"rms_mm"}, true, false, true};
   if (auto st = plot_png(t, rms, out / "register_rms.png"); !st) rep.warnings.push_back(st.error().message);
-  rep.errors["ours_best_max_rotation_deg"] = ours_best;
-  rep.errors["icp_chain_best_max_rotation_deg"] = icp_best;
+  // Worst over the seeds: a registration is judged by its bad starts.
+  rep.errors["ours_worst_ring_rotation_deg"] = ours_worst;
+  rep.errors["ours_worst_any_scan_rotation_deg"] = ours_all_views_worst;
+  rep.errors["ours_ring_only_worst_rotation_deg"] = ring_only_worst;
+  rep.errors["icp_chain_best_ring_rotation_deg"] = icp_best;
+  rep.errors["icp_chain_worst_ring_rotation_deg"] = icp_worst;
   rep.counts["ours_mean_seconds"] = ours_seconds / seeds;
+  rep.counts["ours_ring_only_mean_seconds"] = ring_only_seconds / seeds;
   rep.counts["icp_chain_80_mean_seconds"] = icp_seconds / seeds;
   rep.seconds = total.seconds();
   return finish(rep, out / "report.json");
