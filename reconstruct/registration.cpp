@@ -325,9 +325,11 @@ Status run_levels(Run& run, PoseState& st) {
     for (int a = 0; a < n; ++a)
       for (int b = a + 1; b < n; ++b)
         if (is_variable(run.o, a) || is_variable(run.o, b)) candidates.emplace_back(a, b);
-    const size_t cap = static_cast<size_t>(std::max(1, run.o.max_correspondences_per_pair));
     // Coarse levels end when the poses move by a twentieth of their voxel.
     const bool last = level + 1 == run.voxels.size();
+    // The full count where the answer is settled; coarse levels only bring
+    // the poses near it.
+    const size_t cap = static_cast<size_t>(std::max(1, last ? run.o.max_correspondences_per_pair : 800));
     const double tol_m = last ? run.o.converged_m : std::max(run.o.converged_m, 0.05 * voxel);
     const double tol_deg = last ? run.o.converged_deg
                                 : std::max(run.o.converged_deg, tol_m / std::max(run.extent.radius, 1e-6) / kDeg);

@@ -70,10 +70,11 @@ struct RegistrationOptions {
   int max_solver_iterations = 8;   // per round
   double converged_deg = 0.002, converged_m = 1e-5;  // pose change ending the last level
   int max_points_per_view = 3000;  // sources per view per level
-  // Correspondences per ordered pair in the problem, evenly spaced over the
-  // matched sources. Fewer leave the answer depending on which sources were
-  // kept: on the Stanford bunny, bun180 against bun000 spread over
-  // 0.22-0.29 deg across ten perturbed starts with 800, 0.23-0.27 with 2000.
+  // Correspondences per ordered pair in the last level's problems (coarser
+  // levels: 800), evenly spaced over the matched sources. Fewer leave the
+  // answer depending on which sources were kept: on the Stanford bunny,
+  // bun180 against bun000 spread over 0.22-0.29 deg across ten perturbed
+  // starts with 800, 0.23-0.27 with 2000.
   int max_correspondences_per_pair = 2000;
   double max_normal_angle_deg = 45;
   double min_pair_overlap = 0.05;  // fraction of the smaller view with correspondences
