@@ -99,63 +99,73 @@ float MeshRaycaster::distance(const Eigen::Vector3f& o, const Eigen::Vector3f& d
   return rh.hit.geomID == RTC_INVALID_GEOMETRY_ID ? 0.f : rh.ray.tfar;
 }
 
-ImageF MeshRaycaster::distance_image(const Intrinsics& K, const Eigen::Isometry3d& world_from_camera, int threads) const {
+// Undistorting every pixel is the costly part: the rays of the last
+// intrinsics are kept (the cameras of a session share them).
+std::shared_ptr<const std::vector<Eigen::Vector3f>> MeshRaycaster::rays_of(const Intrinsics& K, int threads) const {
+  std::lock_guard<std::mutex> lock(impl_->rays_mutex);
+  if (!impl_->rays || !(impl_->rays_for.K() == K.K()) || impl_->rays_for.dist != K.dist ||
+      impl_->rays_for.width != K.width || impl_->rays_for.height != K.height) {
+    auto r = std::make_shared<std::vector<Eigen::Vector3f>>();
+    r->assign(size_t(K.width) * K.height, Eigen::Vector3f::Zero());
+    parallel_for(K.height, worker_count(threads), [&](int y) {
+      for (int x = 0; x < K.width; ++x)
+        if (auto ray = K.ray({double(x), double(y)})) (*r)[size_t(y) * K.width + x] = ray->cast<float>().normalized();
+    });
+    impl_->rays = r;
+    impl_->rays_for = K;
+  }
+  return impl_->rays;
+}
+
+void MeshRaycaster::prepare_rays(const Intrinsics& K, int threads) const { rays_of(K, threads); }
+
+ImageF MeshRaycaster::distance_image(const Intrinsics& K, const Eigen::Isometry3d& world_from_camera, int threads,
+                                     const std::vector<uint8_t>* wanted) const {
   ImageF out(K.width, K.height, 1, 0.f);
+  if (wanted && wanted->size() != out.pixels()) wanted = nullptr;  // a mask of another size: every pixel
   const Eigen::Matrix3f R = world_from_camera.linear().cast<float>();
   const Eigen::Vector3f o = world_from_camera.translation().cast<float>();
-  // Undistorting every pixel is the costly part: the rays of the last
-  // intrinsics are kept (the cameras of a session share them).
-  std::shared_ptr<const std::vector<Eigen::Vector3f>> rays;
-  {
-    std::lock_guard<std::mutex> lock(impl_->rays_mutex);
-    if (!impl_->rays || !(impl_->rays_for.K() == K.K()) || impl_->rays_for.dist != K.dist ||
-        impl_->rays_for.width != K.width || impl_->rays_for.height != K.height) {
-      auto r = std::make_shared<std::vector<Eigen::Vector3f>>();
-      r->assign(size_t(K.width) * K.height, Eigen::Vector3f::Zero());
-      parallel_for(K.height, worker_count(threads), [&](int y) {
-        for (int x = 0; x < K.width; ++x)
-          if (auto ray = K.ray({double(x), double(y)})) (*r)[size_t(y) * K.width + x] = ray->cast<float>().normalized();
-      });
-      impl_->rays = r;
-      impl_->rays_for = K;
-    }
-    rays = impl_->rays;
-  }
-  // Eight neighbouring pixels of a row at a time: coherent rays traced as one
-  // packet (those that miss the mesh's bounds are masked off).
+  const std::shared_ptr<const std::vector<Eigen::Vector3f>> rays = rays_of(K, threads);
+  // Eight pixels of a row at a time, of those whose rays meet the mesh's
+  // bounds (and are wanted): neighbouring rays traced as one packet.
   parallel_for(K.height, worker_count(threads), [&](int y) {
     RTCIntersectContext ctx;
     rtcInitIntersectContext(&ctx);
     ctx.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
-    for (int x0 = 0; x0 < K.width; x0 += 8) {
-      alignas(32) int valid[8];
-      alignas(32) RTCRayHit8 rh;
-      int any = 0;
-      for (int k = 0; k < 8; ++k) {
-        valid[k] = 0;
-        const int x = x0 + k;
-        if (x >= K.width) continue;
-        const Eigen::Vector3f& r = (*rays)[size_t(y) * K.width + x];
-        if (r.z() <= 0) continue;
-        const Eigen::Vector3f d = R * r;
-        if (!meets(impl_->bounds, o, d)) continue;
-        valid[k] = -1, any = 1;
-        rh.ray.org_x[k] = o.x(), rh.ray.org_y[k] = o.y(), rh.ray.org_z[k] = o.z();
-        rh.ray.dir_x[k] = d.x(), rh.ray.dir_y[k] = d.y(), rh.ray.dir_z[k] = d.z();
-        rh.ray.tnear[k] = 0;
-        rh.ray.tfar[k] = std::numeric_limits<float>::infinity();
-        rh.ray.time[k] = 0;
-        rh.ray.mask[k] = 0xffffffffu;
-        rh.ray.id[k] = 0;
-        rh.ray.flags[k] = 0;
-        rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
-        rh.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
-      }
-      if (!any) continue;
+    alignas(32) int valid[8];
+    alignas(32) RTCRayHit8 rh;
+    int xs[8];
+    int lanes = 0;
+    auto trace = [&] {
+      for (int k = lanes; k < 8; ++k) valid[k] = 0;
       rtcIntersect8(valid, impl_->scene, &ctx, &rh);
-      for (int k = 0; k < 8; ++k)
-        if (valid[k] && rh.hit.geomID[k] != RTC_INVALID_GEOMETRY_ID) out.data[size_t(y) * K.width + x0 + k] = rh.ray.tfar[k];
+      for (int k = 0; k < lanes; ++k)
+        if (rh.hit.geomID[k] != RTC_INVALID_GEOMETRY_ID) out.data[size_t(y) * K.width + xs[k]] = rh.ray.tfar[k];
+      lanes = 0;
+    };
+    for (int x = 0; x < K.width; ++x) {
+      const size_t p = size_t(y) * K.width + x;
+      if (wanted && !(*wanted)[p]) continue;
+      const Eigen::Vector3f& r = (*rays)[p];
+      if (r.z() <= 0) continue;
+      const Eigen::Vector3f d = R * r;
+      if (!meets(impl_->bounds, o, d)) continue;
+      const int k = lanes++;
+      xs[k] = x;
+      valid[k] = -1;
+      rh.ray.org_x[k] = o.x(), rh.ray.org_y[k] = o.y(), rh.ray.org_z[k] = o.z();
+      rh.ray.dir_x[k] = d.x(), rh.ray.dir_y[k] = d.y(), rh.ray.dir_z[k] = d.z();
+      rh.ray.tnear[k] = 0;
+      rh.ray.tfar[k] = std::numeric_limits<float>::infinity();
+      rh.ray.time[k] = 0;
+      rh.ray.mask[k] = 0xffffffffu;
+      rh.ray.id[k] = 0;
+      rh.ray.flags[k] = 0;
+      rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
+      rh.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
+      if (lanes == 8) trace();
     }
+    if (lanes) trace();
   });
   return out;
 }

@@ -3,7 +3,9 @@
 // along its ray. Ray casting on Embree (only camera_depth.cpp includes it).
 #pragma once
 
+#include <cstdint>
 #include <memory>
+#include <vector>
 
 #include <Eigen/Geometry>
 
@@ -20,8 +22,14 @@ class MeshRaycaster {
   ~MeshRaycaster();
 
   // Distance along each pixel's ray (through the lens model) to the first hit,
-  // 0 where the ray misses. Pixels are sampled at their centres.
-  ImageF distance_image(const Intrinsics& K, const Eigen::Isometry3d& world_from_camera, int threads = 0) const;
+  // 0 where the ray misses. Pixels are sampled at their centres. With
+  // `wanted` (one byte per pixel), only the pixels marked non-zero are cast;
+  // the others stay 0.
+  ImageF distance_image(const Intrinsics& K, const Eigen::Isometry3d& world_from_camera, int threads = 0,
+                        const std::vector<uint8_t>* wanted = nullptr) const;
+  // Computes and keeps the pixel rays of `K` (distance_image does on first
+  // use): callers that cast from several threads prepare them once, in parallel.
+  void prepare_rays(const Intrinsics& K, int threads = 0) const;
   // Distance from `origin` along unit `dir` to the first hit, or 0.
   float distance(const Eigen::Vector3f& origin, const Eigen::Vector3f& dir) const;
   size_t triangles() const;
@@ -29,6 +37,7 @@ class MeshRaycaster {
  private:
   struct Impl;
   explicit MeshRaycaster(std::unique_ptr<Impl> impl);
+  std::shared_ptr<const std::vector<Eigen::Vector3f>> rays_of(const Intrinsics& K, int threads) const;
   std::unique_ptr<Impl> impl_;
 };
 

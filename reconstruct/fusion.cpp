@@ -182,8 +182,8 @@ void SparseVolume::integrate(const DepthObservation& v, int threads) {
   {
     const int band = int(std::ceil(m.tau / m.voxel));
     constexpr int kLeaf = openvdb::MaskTree::LeafNodeType::DIM;  // 8
-    std::unordered_set<uint64_t> leaves;
-    std::vector<Coord> origins;
+    openvdb::tree::ValueAccessor<openvdb::MaskTree> acc(touched->tree());
+    Coord last_lo(std::numeric_limits<int>::max()), last_hi = last_lo;
     size_t used = 0;
     for (int y = 0; y < depth.height; y += 2)
       for (int x = 0; x < depth.width; x += 2) {
@@ -200,28 +200,30 @@ void SparseVolume::integrate(const DepthObservation& v, int threads) {
         const Coord c = coord_of(pw, m.voxel);
         Coord lo, hi;
         for (int a = 0; a < 3; ++a) lo[a] = (c[a] - band) & ~(kLeaf - 1), hi[a] = (c[a] + band) & ~(kLeaf - 1);
+        if (lo == last_lo && hi == last_hi) continue;  // neighbouring pixels: the same leaves
+        last_lo = lo, last_hi = hi;
         for (int lx = lo.x(); lx <= hi.x(); lx += kLeaf)
           for (int ly = lo.y(); ly <= hi.y(); ly += kLeaf)
-            for (int lz = lo.z(); lz <= hi.z(); lz += kLeaf) {
-              const uint64_t key = (uint64_t(uint32_t(lx) & 0x1fffff) << 42) | (uint64_t(uint32_t(ly) & 0x1fffff) << 21) |
-                                   uint64_t(uint32_t(lz) & 0x1fffff);
-              if (leaves.insert(key).second) origins.emplace_back(lx, ly, lz);
-            }
+            for (int lz = lo.z(); lz <= hi.z(); lz += kLeaf) acc.touchLeaf(Coord(lx, ly, lz));
       }
     m.stats.depth_samples += used;
     if (used == 0) {
       ++m.stats.views_without_depth;
       return;
     }
-    for (const Coord& o : origins) touched->tree().touchLeaf(o)->setValuesOn();
+    for (auto leaf = touched->tree().beginLeaf(); leaf; ++leaf) leaf->setValuesOn();
   }
   m.tsdf->tree().topologyUnion(touched->tree());
 
   // 2. Projective update of every touched voxel, leaf nodes in parallel (each
-  //    leaf's voxels are written by one task only).
+  //    leaf's voxels are written by one task only). In a leaf, the voxels'
+  //    camera coordinates step by one voxel along each grid axis.
   const Eigen::Isometry3d cam_from_world = v.world_from_camera.inverse();
   const Intrinsics& K = v.intrinsics;
   const bool pinhole = !K.has_distortion();
+  const Eigen::Matrix3f step = (cam_from_world.linear() * m.voxel).cast<float>();
+  const float fx = float(K.fx), fy = float(K.fy), cx = float(K.cx), cy = float(K.cy);
+  const float unit = float(v.unit_m), tau = float(m.tau), behind = float(m.behind);
   openvdb::tree::LeafManager<openvdb::MaskTree> leaves(touched->tree());
   std::atomic<size_t> updates{0};
   in_arena(threads, [&] {
@@ -230,39 +232,47 @@ void SparseVolume::integrate(const DepthObservation& v, int threads) {
       for (auto leaf = range.begin(); leaf; ++leaf) {
         auto* dst = m.tsdf->tree().probeLeaf(leaf->origin());
         if (!dst) continue;
-        for (auto it = leaf->cbeginValueOn(); it; ++it) {
-          const Coord c = it.getCoord();
-          const Eigen::Vector3d pw = m.centre(c);
-          if (!m.in_crop(pw)) continue;
-          const Eigen::Vector3d pc = cam_from_world * pw;
-          // Without lens distortion, project() reduces to these operations
-          // (the same values, without two calls per voxel).
-          Eigen::Vector2d px;
-          if (pinhole) {
-            if (!(pc.z() > 0)) continue;
-            px = {K.fx * (pc.x() / pc.z()) + K.cx, K.fy * (pc.y() / pc.z()) + K.cy};
-          } else if (auto p = K.project(pc)) {
-            px = *p;
-          } else {
-            continue;
+        const Coord o = leaf->origin();
+        constexpr int D = openvdb::MaskTree::LeafNodeType::DIM;
+        // The crop box, tested per voxel only where the leaf crosses it.
+        const Eigen::Vector3d lo = m.centre(o), hi = m.centre(o.offsetBy(D - 1));
+        const bool inside = !m.crop || (m.crop->contains(lo) && m.crop->contains(hi));
+        const Eigen::Vector3f base = (cam_from_world * lo).cast<float>();
+        openvdb::Vec3s* val = dst->buffer().data();
+        for (int i = 0; i < D; ++i)
+          for (int j = 0; j < D; ++j) {
+            const Eigen::Vector3f row = base + step.col(0) * float(i) + step.col(1) * float(j);
+            for (int k = 0; k < D; ++k) {
+              const Eigen::Vector3f pc = row + step.col(2) * float(k);
+              if (!(pc.z() > 0)) continue;
+              if (!inside && !m.in_crop(m.centre(o.offsetBy(i, j, k)))) continue;
+              float px, py;
+              if (pinhole) {
+                px = fx * (pc.x() / pc.z()) + cx, py = fy * (pc.y() / pc.z()) + cy;
+              } else if (auto p = K.project(pc.cast<double>())) {
+                px = float(p->x()), py = float(p->y());
+              } else {
+                continue;
+              }
+              // Nearest pixel; the comparison also refuses NaN.
+              if (!(px >= -0.5f && py >= -0.5f)) continue;
+              const int x = int(px + 0.5f), y = int(py + 0.5f);
+              if (x >= depth.width || y >= depth.height) continue;
+              const uint16_t d = depth.data[size_t(y) * depth.width + x];
+              if (d == 0) continue;
+              const float sdf = float(d) * unit - pc.z();
+              if (sdf < -tau) continue;  // far behind the surface: unknown
+              const float s = std::clamp(sdf, -behind, tau);
+              // The same layout in both trees' leaves.
+              openvdb::Vec3s& vv = val[(i << 6) | (j << 3) | k];
+              const float n = vv[1] + 1.f;
+              const float delta = s - vv[0];
+              vv[0] += delta / n;
+              vv[2] += delta * (s - vv[0]);
+              vv[1] = n;
+              ++local;
+            }
           }
-          const int x = int(std::lround(px.x())), y = int(std::lround(px.y()));
-          if (x < 0 || y < 0 || x >= depth.width || y >= depth.height) continue;
-          const uint16_t d = depth.data[size_t(y) * depth.width + x];
-          if (d == 0) continue;
-          const double sdf = d * v.unit_m - pc.z();
-          if (sdf < -m.tau) continue;  // far behind the surface: unknown
-          const float s = float(std::clamp(sdf, -m.behind, m.tau));
-          const openvdb::Index offset = it.pos();  // the same layout in both trees' leaves
-          openvdb::Vec3s val = dst->getValue(offset);
-          const float n = val[1] + 1.f;
-          const float delta = s - val[0];
-          val[0] += delta / n;
-          val[2] += delta * (s - val[0]);
-          val[1] = n;
-          dst->setValueOnly(offset, val);
-          ++local;
-        }
       }
       updates += local;
     });

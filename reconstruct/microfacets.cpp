@@ -122,6 +122,33 @@ FacetStats build_facets(const std::vector<EvidenceVoxel>& ev, const std::vector<
     const Eigen::Isometry3d inv = c.world_from_camera.inverse();
     xf.push_back({inv.linear().cast<float>(), inv.translation().cast<float>()});
   }
+  // The cameras' depth: given, or asked for at just the pixels the test below
+  // reads (the same pixel for the same facet and camera).
+  auto pixel_of = [&](size_t c, const Eigen::Vector3f& centre, Eigen::Vector3f* pc_out) -> int {
+    const Eigen::Vector3f pc = xf[c].R * centre + xf[c].t;
+    if (pc_out) *pc_out = pc;
+    const Intrinsics& K = cameras[c].intrinsics;
+    auto px = K.project(pc.cast<double>());
+    if (!px || !K.contains(*px)) return -1;
+    const int x = std::clamp(int(std::lround(px->x())), 0, K.width - 1);
+    const int y = std::clamp(int(std::lround(px->y())), 0, K.height - 1);
+    return y * K.width + x;
+  };
+  std::vector<ImageF> asked(cameras.size());
+  std::vector<const ImageF*> depth(cameras.size());
+  std::vector<size_t> asked_pixels(cameras.size(), 0);
+  parallel_for(int(cameras.size()), worker_count(o.threads), [&](int ci) {
+    const size_t c = size_t(ci);
+    depth[c] = cameras[c].distance;
+    if (depth[c] || !cameras[c].distance_at) return;
+    const Intrinsics& K = cameras[c].intrinsics;
+    std::vector<uint8_t> wanted(size_t(K.width) * size_t(K.height), 0);
+    for (const Draft& d : drafts)
+      if (const int p = pixel_of(c, d.centre, nullptr); p >= 0) asked_pixels[c] += !wanted[size_t(p)], wanted[size_t(p)] = 1;
+    asked[c] = cameras[c].distance_at(wanted);
+    depth[c] = &asked[c];
+  });
+  for (size_t n : asked_pixels) st.depth_pixels_asked += n;
   std::vector<std::vector<uint32_t>> seen(drafts.size());
   std::vector<size_t> occluded(drafts.size(), 0), outside(drafts.size(), 0);
   const int chunk = 4096;
@@ -132,17 +159,15 @@ FacetStats build_facets(const std::vector<EvidenceVoxel>& ev, const std::vector<
       const Draft& d = drafts[i];
       const float tol = 0.5f * std::sqrt(3.f) * d.size;
       for (size_t c = 0; c < cameras.size(); ++c) {
-        const Eigen::Vector3f pc = xf[c].R * d.centre + xf[c].t;
-        auto px = cameras[c].intrinsics.project(pc.cast<double>());
-        if (!px || !cameras[c].intrinsics.contains(*px)) {
+        Eigen::Vector3f pc;
+        const int p = pixel_of(c, d.centre, &pc);
+        if (p < 0) {
           ++outside[i];
           continue;
         }
-        const ImageF* D = cameras[c].distance;
-        if (D && !D->empty()) {
-          const int x = std::clamp(int(std::lround(px->x())), 0, D->width - 1);
-          const int y = std::clamp(int(std::lround(px->y())), 0, D->height - 1);
-          const float dd = D->data[size_t(y) * D->width + x];
+        const ImageF* D = depth[c];
+        if (D && D->width == cameras[c].intrinsics.width && D->height == cameras[c].intrinsics.height) {
+          const float dd = D->data[size_t(p)];
           if (dd > 0 && pc.norm() > dd + tol) {
             ++occluded[i];
             continue;

@@ -3,6 +3,8 @@
 // that see it, and the error bound that ties facet size to camera spacing.
 #pragma once
 
+#include <functional>
+
 #include <cstdint>
 #include <vector>
 
@@ -46,6 +48,10 @@ struct FacetCamera {
   Intrinsics intrinsics;
   Eigen::Isometry3d world_from_camera = Eigen::Isometry3d::Identity();
   const ImageF* distance = nullptr;  // per-camera depth: distance along the ray, 0 = miss
+  // Without `distance`: the depth at just the pixels marked in `wanted` (one
+  // byte per pixel), the others 0. build_facets marks the pixels its test
+  // reads, so a model without textures casts those rays only.
+  std::function<ImageF(const std::vector<uint8_t>& wanted)> distance_at;
 };
 
 struct FacetOptions {
@@ -65,6 +71,7 @@ struct FacetStats {
   size_t camera_links = 0;
   size_t occluded = 0;           // (facet, camera) pairs inside the image but hidden
   size_t outside_image = 0;      // (facet, camera) pairs out of the image
+  size_t depth_pixels_asked = 0;  // pixels asked of `distance_at`, over the cameras
 };
 
 // Facet records and their camera lists. A camera sees a facet when its

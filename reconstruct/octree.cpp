@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
 #include <map>
 #include <numbers>
 #include <optional>
@@ -16,6 +17,50 @@ uint64_t pack(const Eigen::Vector3i& v) {
   constexpr int64_t off = int64_t(1) << 20;
   return (uint64_t(int64_t(v.x()) + off) << 42) | (uint64_t(int64_t(v.y()) + off) << 21) | uint64_t(int64_t(v.z()) + off);
 }
+
+// A sparse grid of T in blocks of 8^3 (`empty` where nothing was put): the
+// neighbour lookups of the build stay within a block and hit the last one
+// looked up, instead of hashing every voxel.
+template <typename T>
+class BlockGrid {
+ public:
+  explicit BlockGrid(T empty) : empty_(empty) {}
+  const T& get(const Eigen::Vector3i& p) const {
+    const int64_t b = block_of(p);
+    return b < 0 ? empty_ : blocks_[size_t(b)][offset(p)];
+  }
+  T& at(const Eigen::Vector3i& p) {
+    int64_t b = block_of(p);
+    if (b < 0) {
+      b = int64_t(blocks_.size());
+      blocks_.emplace_back();
+      blocks_.back().fill(empty_);
+      index_.emplace(key(p), uint32_t(b));
+      last_key_ = key(p), last_ = b;
+    }
+    return blocks_[size_t(b)][offset(p)];
+  }
+  void reserve(size_t voxels) { index_.reserve(voxels / 64 + 16); }
+
+ private:
+  static uint64_t key(const Eigen::Vector3i& p) {
+    return pack(Eigen::Vector3i(p.x() >> 3, p.y() >> 3, p.z() >> 3));
+  }
+  static size_t offset(const Eigen::Vector3i& p) { return size_t((p.x() & 7) << 6 | (p.y() & 7) << 3 | (p.z() & 7)); }
+  int64_t block_of(const Eigen::Vector3i& p) const {
+    const uint64_t k = key(p);
+    if (k == last_key_) return last_;
+    auto it = index_.find(k);
+    last_key_ = k;
+    last_ = it == index_.end() ? -1 : int64_t(it->second);
+    return last_;
+  }
+  T empty_;
+  std::unordered_map<uint64_t, uint32_t> index_;
+  std::vector<std::array<T, 512>> blocks_;
+  mutable uint64_t last_key_ = ~uint64_t(0);
+  mutable int64_t last_ = -1;
+};
 
 // acos with its argument clamped: rounding puts dot products of unit vectors
 // just outside [-1, 1].
@@ -39,13 +84,13 @@ struct Tmp {
 SurfaceOctree SurfaceOctree::build(const std::vector<SdfSample>& samples, double voxel, double max_jump_voxels) {
   SurfaceOctree t;
   t.voxel_ = voxel;
-  std::unordered_map<uint64_t, float> sdf;
-  sdf.reserve(samples.size() * 2);
+  BlockGrid<float> sdf(std::numeric_limits<float>::quiet_NaN());
+  sdf.reserve(samples.size());
   for (const auto& s : samples)
-    if (std::isfinite(s.sdf)) sdf[pack(s.ijk)] = s.sdf;
+    if (std::isfinite(s.sdf)) sdf.at(s.ijk) = s.sdf;
   auto get = [&](const Eigen::Vector3i& p) -> std::optional<float> {
-    auto it = sdf.find(pack(p));
-    return it == sdf.end() ? std::nullopt : std::optional<float>(it->second);
+    const float v = sdf.get(p);
+    return std::isnan(v) ? std::nullopt : std::optional<float>(v);
   };
   auto gradient = [&](const Eigen::Vector3i& p, float sp) {
     Eigen::Vector3f g = Eigen::Vector3f::Zero();
@@ -59,7 +104,7 @@ SurfaceOctree SurfaceOctree::build(const std::vector<SdfSample>& samples, double
   };
 
   // Crossing edges and the leaf cells around them.
-  std::unordered_map<uint64_t, int> leaf_of;
+  BlockGrid<int> leaf_of(-1);
   std::vector<Leaf> leaves;
   std::vector<std::array<int, 4>> edge_leaf;  // leaves index, cyclic order around the edge
   for (const auto& s : samples) {
@@ -79,13 +124,13 @@ SurfaceOctree SurfaceOctree::build(const std::vector<SdfSample>& samples, double
       for (int k = 0; k < 4; ++k) {
         const int db = order[k][0], dc = order[k][1];
         const Eigen::Vector3i cell = p - db * Eigen::Vector3i::Unit(b) - dc * Eigen::Vector3i::Unit(c);
-        auto [it, fresh] = leaf_of.try_emplace(pack(cell), int(leaves.size()));
-        if (fresh) leaves.push_back({cell});
-        Leaf& l = leaves[size_t(it->second)];
+        int& id = leaf_of.at(cell);
+        if (id < 0) id = int(leaves.size()), leaves.push_back({cell});
+        Leaf& l = leaves[size_t(id)];
         l.sum_p += point;
         l.normals.push_back(n);
         l.flags |= uint16_t(1u << (a * 4 + db + 2 * dc));
-        ids[size_t(k)] = it->second;
+        ids[size_t(k)] = id;
       }
       t.edges_.push_back({p, uint8_t(a), sp < 0});
       edge_leaf.push_back(ids);
@@ -251,15 +296,23 @@ Mesh SurfaceOctree::patch_mesh(const std::vector<int>& cut) const {
 }
 
 size_t boundary_edges(const Mesh& mesh) {
-  std::map<std::pair<int, int>, int> count;
+  // Every edge as a sorted key; an edge used an odd number of times is open.
+  std::vector<uint64_t> edges;
+  edges.reserve(mesh.faces.size() * 3);
   for (const auto& f : mesh.faces)
     for (int k = 0; k < 3; ++k) {
-      int a = f[k], b = f[(k + 1) % 3];
+      uint32_t a = uint32_t(f[k]), b = uint32_t(f[(k + 1) % 3]);
       if (a > b) std::swap(a, b);
-      ++count[{a, b}];
+      edges.push_back(uint64_t(a) << 32 | b);
     }
+  std::sort(edges.begin(), edges.end());
   size_t odd = 0;
-  for (const auto& [e, c] : count) odd += c % 2;
+  for (size_t i = 0; i < edges.size();) {
+    size_t j = i;
+    while (j < edges.size() && edges[j] == edges[i]) ++j;
+    odd += (j - i) % 2;
+    i = j;
+  }
   return odd;
 }
 

@@ -387,17 +387,19 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   model.voxel_size_m = w0;
   std::vector<ImageF> distance(views.size());
   {
-    Progress progress("camera depth", views.size());
+    // Every pixel's distance goes into the textures; without textures the
+    // facets' visibility test asks for the pixels it reads, and only those.
+    Progress progress("camera depth", job.textures ? views.size() : 0);
     for (size_t i = 0; i < views.size(); ++i) {
       const View& v = views[i];
-      distance[i] = (*caster)->distance_image(v.K, v.world_from_camera, job.threads);
+      if (job.textures) distance[i] = (*caster)->distance_image(v.K, v.world_from_camera, job.threads);
       ModelCamera mc;
       mc.intrinsics = v.K;
       mc.world_from_camera = v.world_from_camera;
       mc.session_frame = v.frame;
       if (job.textures) mc.texture = "cameras/" + frame_file_name(v.frame, "exr");
       model.cameras.push_back(mc);
-      progress.tick();
+      if (job.textures) progress.tick();
     }
     progress.done();
   }
@@ -424,7 +426,16 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
 
   // Facets.
   std::vector<FacetCamera> fc;
-  for (size_t i = 0; i < views.size(); ++i) fc.push_back({views[i].K, views[i].world_from_camera, &distance[i]});
+  for (size_t i = 0; i < views.size(); ++i) {
+    FacetCamera c{views[i].K, views[i].world_from_camera, job.textures ? &distance[i] : nullptr, {}};
+    if (!job.textures) {
+      if (i == 0) (*caster)->prepare_rays(views[i].K, job.threads);
+      c.distance_at = [&, i](const std::vector<uint8_t>& wanted) {
+        return (*caster)->distance_image(views[i].K, views[i].world_from_camera, 1, &wanted);
+      };
+    }
+    fc.push_back(std::move(c));
+  }
   FacetOptions fo;
   fo.voxel_m = w0;
   fo.per_region = job.per_region;
@@ -439,6 +450,11 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   rep.skipped["facets_seen_by_no_camera"] = double(st.unseen);
   rep.skipped["facet_camera_pairs_occluded"] = double(st.occluded);
   rep.skipped["facet_camera_pairs_outside_image"] = double(st.outside_image);
+  if (!job.textures) {
+    double pixels = 0;
+    for (const auto& v : views) pixels += double(v.K.width) * v.K.height;
+    rep.skipped["camera_depth_pixels_not_cast"] = pixels - double(st.depth_pixels_asked);
+  }
   timer.lap("facets");
 
   Eigen::AlignedBox3d bounds;

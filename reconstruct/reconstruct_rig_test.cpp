@@ -86,6 +86,35 @@ TEST(ReconstructRig, TexturedBunnyFacetsOnTheSurface) {
   ASSERT_TRUE(tex) << tex.error().message;
 }
 
+// Without textures the cameras' depth is cast at just the pixels the facets'
+// visibility test reads: the same facets, seen by the same cameras.
+TEST(ReconstructRig, WithoutTexturesTheSameFacetsFromFewerRays) {
+  if (!fs::exists(fs::path(S2R_DATA_DIR) / "stanford_bunny" / "bun_zipper.ply"))
+    GTEST_SKIP() << "no Stanford bunny in " << S2R_DATA_DIR;
+  ReconstructJob job;
+  job.session = session("bunny", 24);
+  job.voxel_m = 0.003;
+  job.geometry = "depth";
+  job.out = scratch() / "bunny_textured_3mm";
+  const Report with = reconstruct(job);
+  job.textures = false;
+  job.out = scratch() / "bunny_untextured_3mm";
+  const Report without = reconstruct(job);
+  auto a = load_model(scratch() / "bunny_textured_3mm");
+  auto b = load_model(job.out);
+  ASSERT_TRUE(a && b);
+  ASSERT_EQ(a->facets.size(), b->facets.size());
+  ASSERT_GT(a->facets.size(), 1000u);
+  for (size_t i = 0; i < a->facets.size(); ++i) {
+    ASSERT_EQ(a->facets[i].first_camera, b->facets[i].first_camera) << i;
+    ASSERT_EQ(a->facets[i].camera_count, b->facets[i].camera_count) << i;
+  }
+  EXPECT_EQ(a->facet_cameras, b->facet_cameras);
+  EXPECT_EQ(with.skipped.count("camera_depth_pixels_not_cast"), 0u);
+  // 24 cameras of 640 x 480 pixels; the facets read a small part of them.
+  EXPECT_GT(without.skipped.at("camera_depth_pixels_not_cast"), 0.9 * 24 * 640 * 480);
+}
+
 TEST(ReconstructRig, FuzzyStrandsAreCovered) {
   ReconstructJob job;
   job.session = session("fuzzy", 24);
