@@ -437,72 +437,87 @@ HullStats SparseVolume::carve_hull(const std::vector<SilhouetteObservation>& vie
 
 std::vector<EvidenceVoxel> SparseVolume::evidence(double reliability_sigma_m) const {
   const Impl& m = *impl_;
-  std::vector<EvidenceVoxel> out;
-  auto acc = m.tsdf->getConstAccessor();
-  auto value = [&](const Coord& c, openvdb::Vec3s& v) { return acc.probeValue(c, v) && v[1] > 0; };
-  for (auto it = m.tsdf->cbeginValueOn(); it; ++it) {
-    const openvdb::Vec3s v = *it;
-    if (v[1] <= 0 || !it.isVoxelValue()) continue;
-    const Coord c = it.getCoord();
-    bool surface = false;
-    Eigen::Vector3f grad = Eigen::Vector3f::Zero();
-    for (int a = 0; a < 3; ++a) {
-      openvdb::Vec3s nb[2];
-      bool has[2];
-      for (int k = 0; k < 2; ++k) {
-        Coord n = c;
-        n[a] += k ? 1 : -1;
-        has[k] = value(n, nb[k]);
-        if (has[k] && ((nb[k][0] < 0) != (v[0] < 0)) && std::abs(nb[k][0] - v[0]) <= 2 * m.voxel &&
-            (std::abs(v[0]) < std::abs(nb[k][0]) || (std::abs(v[0]) == std::abs(nb[k][0]) && k == 1)))
-          surface = true;
-      }
-      if (has[0] && has[1]) grad[a] = (nb[1][0] - nb[0][0]) / 2;
-      else if (has[1]) grad[a] = nb[1][0] - v[0];
-      else if (has[0]) grad[a] = v[0] - nb[0][0];
-    }
-    if (!surface && grad.norm() > 0.3f * float(m.voxel)) {
-      // The surface, locally a plane, cuts this voxel's cube without crossing
-      // a line to a 6-neighbour's centre (it clips a corner or an edge): the
-      // plane at distance |sdf| / |grad| meets the cube when that is at most
-      // (w/2) |n|_1. Without these voxels a ray that meets the surface in
-      // such a corner finds no facet within w/2 of it (holes in the render).
-      const Eigen::Vector3f n = grad.normalized();
-      const double dist = std::abs(v[0]) * m.voxel / grad.norm();
-      if (dist <= 0.5 * m.voxel * n.lpNorm<1>()) {
-        for (int dx = -1; dx <= 1 && !surface; ++dx)
-          for (int dy = -1; dy <= 1 && !surface; ++dy)
-            for (int dz = -1; dz <= 1 && !surface; ++dz) {
-              openvdb::Vec3s nb;
-              if ((dx || dy || dz) && value(c.offsetBy(dx, dy, dz), nb) && (nb[0] < 0) != (v[0] < 0) &&
-                  std::abs(nb[0] - v[0]) <= 3 * m.voxel)
-                surface = true;
-            }
-      }
-    }
-    if (!surface && std::abs(v[0]) < 0.5 * m.voxel) {
-      // No observed neighbour across the surface (an object about one voxel
-      // thick): the voxel holds surface when its distance is the smallest around.
-      surface = true;
-      for (int a = 0; a < 3 && surface; ++a)
-        for (int k = 0; k < 2; ++k) {
-          Coord n = c;
-          n[a] += k ? 1 : -1;
-          openvdb::Vec3s nb;
-          if (value(n, nb) && std::abs(nb[0]) < std::abs(v[0])) surface = false;
+  // Leaf nodes in parallel, each with its own accessor and list; the lists
+  // joined in leaf order give the order of a serial pass over the tree.
+  openvdb::tree::LeafManager<const TsdfGrid::TreeType> lm(m.tsdf->constTree());
+  std::vector<std::vector<EvidenceVoxel>> per_leaf(lm.leafCount());
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, lm.leafCount()), [&](const tbb::blocked_range<size_t>& range) {
+    auto acc = m.tsdf->getConstAccessor();
+    auto value = [&](const Coord& c, openvdb::Vec3s& v) { return acc.probeValue(c, v) && v[1] > 0; };
+    for (size_t li = range.begin(); li != range.end(); ++li)
+      for (auto it = lm.leaf(li).cbeginValueOn(); it; ++it) {
+        std::vector<EvidenceVoxel>& out = per_leaf[li];
+        const openvdb::Vec3s v = *it;
+        if (v[1] <= 0) continue;
+        const Coord c = it.getCoord();
+        bool surface = false;
+        Eigen::Vector3f grad = Eigen::Vector3f::Zero();
+        for (int a = 0; a < 3; ++a) {
+          openvdb::Vec3s nb[2];
+          bool has[2];
+          for (int k = 0; k < 2; ++k) {
+            Coord n = c;
+            n[a] += k ? 1 : -1;
+            has[k] = value(n, nb[k]);
+            if (has[k] && ((nb[k][0] < 0) != (v[0] < 0)) && std::abs(nb[k][0] - v[0]) <= 2 * m.voxel &&
+                (std::abs(v[0]) < std::abs(nb[k][0]) || (std::abs(v[0]) == std::abs(nb[k][0]) && k == 1)))
+              surface = true;
+          }
+          if (has[0] && has[1])
+            grad[a] = (nb[1][0] - nb[0][0]) / 2;
+          else if (has[1])
+            grad[a] = nb[1][0] - v[0];
+          else if (has[0])
+            grad[a] = v[0] - nb[0][0];
         }
-    }
-    if (!surface) continue;
-    EvidenceVoxel e;
-    e.ijk = Eigen::Vector3i(c.x(), c.y(), c.z());
-    e.centre = m.centre(c).cast<float>();
-    if (grad.norm() > 1e-12f) e.normal = grad.normalized();
-    e.sdf_m = v[0];
-    e.views = int(v[1]);
-    e.spread_m = float(std::sqrt(std::max(0.f, v[2]) / v[1]));
-    e.reliability = depth_reliability(e.views, e.spread_m, reliability_sigma_m);
-    out.push_back(e);
-  }
+        if (!surface && grad.norm() > 0.3f * float(m.voxel)) {
+          // The surface, locally a plane, cuts this voxel's cube without crossing
+          // a line to a 6-neighbour's centre (it clips a corner or an edge): the
+          // plane at distance |sdf| / |grad| meets the cube when that is at most
+          // (w/2) |n|_1. Without these voxels a ray that meets the surface in
+          // such a corner finds no facet within w/2 of it (holes in the render).
+          const Eigen::Vector3f n = grad.normalized();
+          const double dist = std::abs(v[0]) * m.voxel / grad.norm();
+          if (dist <= 0.5 * m.voxel * n.lpNorm<1>()) {
+            for (int dx = -1; dx <= 1 && !surface; ++dx)
+              for (int dy = -1; dy <= 1 && !surface; ++dy)
+                for (int dz = -1; dz <= 1 && !surface; ++dz) {
+                  openvdb::Vec3s nb;
+                  if ((dx || dy || dz) && value(c.offsetBy(dx, dy, dz), nb) && (nb[0] < 0) != (v[0] < 0) &&
+                      std::abs(nb[0] - v[0]) <= 3 * m.voxel)
+                    surface = true;
+                }
+          }
+        }
+        if (!surface && std::abs(v[0]) < 0.5 * m.voxel) {
+          // No observed neighbour across the surface (an object about one voxel
+          // thick): the voxel holds surface when its distance is the smallest around.
+          surface = true;
+          for (int a = 0; a < 3 && surface; ++a)
+            for (int k = 0; k < 2; ++k) {
+              Coord n = c;
+              n[a] += k ? 1 : -1;
+              openvdb::Vec3s nb;
+              if (value(n, nb) && std::abs(nb[0]) < std::abs(v[0])) surface = false;
+            }
+        }
+        if (!surface) continue;
+        EvidenceVoxel e;
+        e.ijk = Eigen::Vector3i(c.x(), c.y(), c.z());
+        e.centre = m.centre(c).cast<float>();
+        if (grad.norm() > 1e-12f) e.normal = grad.normalized();
+        e.sdf_m = v[0];
+        e.views = int(v[1]);
+        e.spread_m = float(std::sqrt(std::max(0.f, v[2]) / v[1]));
+        e.reliability = depth_reliability(e.views, e.spread_m, reliability_sigma_m);
+        out.push_back(e);
+      }
+  });
+  std::vector<EvidenceVoxel> out;
+  size_t total = 0;
+  for (const auto& l : per_leaf) total += l.size();
+  out.reserve(total);
+  for (const auto& l : per_leaf) out.insert(out.end(), l.begin(), l.end());
   if (m.fuzzy) {
     auto hacc = m.hull->getConstAccessor();
     for (auto it = m.fuzzy->cbeginValueOn(); it; ++it) {
@@ -527,12 +542,14 @@ std::vector<EvidenceVoxel> SparseVolume::evidence(double reliability_sigma_m) co
 std::vector<std::pair<Eigen::Vector3i, float>> SparseVolume::samples() const {
   std::vector<std::pair<Eigen::Vector3i, float>> out;
   for (auto it = impl_->tsdf->cbeginValueOn(); it; ++it)
-    if ((*it)[1] > 0 && it.isVoxelValue()) out.push_back({Eigen::Vector3i(it.getCoord().x(), it.getCoord().y(), it.getCoord().z()), (*it)[0]});
+    if ((*it)[1] > 0 && it.isVoxelValue())
+      out.push_back({Eigen::Vector3i(it.getCoord().x(), it.getCoord().y(), it.getCoord().z()), (*it)[0]});
   if (out.empty() && impl_->hull_only && impl_->hull && impl_->hull->activeVoxelCount() > 0) {
     // Silhouettes only: the signed distance to the hull's boundary.
     auto ls = openvdb::tools::topologyToLevelSet(*impl_->hull, 3, 0, 0, 0);
     for (auto it = ls->cbeginValueOn(); it; ++it)
-      if (it.isVoxelValue()) out.push_back({Eigen::Vector3i(it.getCoord().x(), it.getCoord().y(), it.getCoord().z()), *it});
+      if (it.isVoxelValue())
+        out.push_back({Eigen::Vector3i(it.getCoord().x(), it.getCoord().y(), it.getCoord().z()), *it});
   }
   return out;
 }
