@@ -125,7 +125,7 @@ void add_reconstruct(CLI::App& app) {
   sub->add_option("--holdout", a->holdout, "I,J,...: frames left out entirely (for evaluation)");
   sub->add_option("--truncation", a->truncation, "signed-distance truncation in voxels")->capture_default_str();
   sub->add_flag("--uniform", a->uniform, "one facet size everywhere (no larger facets for unreliable regions)");
-  sub->add_flag("--no-textures", a->no_textures, "do not write the per-camera RGBA + depth textures");
+  sub->add_flag("--no-textures", a->no_textures, "do not write the per-camera RGBA + depth textures (the cameras' depth is then cast only where the facets' visibility needs it)");
   sub->add_option("--threads", a->threads, "worker threads (0 = all cores)")->capture_default_str();
   sub->callback([a] {
     set_runner([a] {
