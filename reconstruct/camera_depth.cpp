@@ -120,9 +120,9 @@ std::shared_ptr<const std::vector<Eigen::Vector3f>> MeshRaycaster::rays_of(const
 void MeshRaycaster::prepare_rays(const Intrinsics& K, int threads) const { rays_of(K, threads); }
 
 ImageF MeshRaycaster::distance_image(const Intrinsics& K, const Eigen::Isometry3d& world_from_camera, int threads,
-                                     const std::vector<uint8_t>* wanted) const {
+                                     const ImageF* reach) const {
   ImageF out(K.width, K.height, 1, 0.f);
-  if (wanted && wanted->size() != out.pixels()) wanted = nullptr;  // a mask of another size: every pixel
+  if (reach && (reach->width != K.width || reach->height != K.height)) reach = nullptr;  // another size: every pixel
   const Eigen::Matrix3f R = world_from_camera.linear().cast<float>();
   const Eigen::Vector3f o = world_from_camera.translation().cast<float>();
   const std::shared_ptr<const std::vector<Eigen::Vector3f>> rays = rays_of(K, threads);
@@ -145,7 +145,8 @@ ImageF MeshRaycaster::distance_image(const Intrinsics& K, const Eigen::Isometry3
     };
     for (int x = 0; x < K.width; ++x) {
       const size_t p = size_t(y) * K.width + x;
-      if (wanted && !(*wanted)[p]) continue;
+      const float far = reach ? reach->data[p] : std::numeric_limits<float>::infinity();
+      if (!(far > 0)) continue;
       const Eigen::Vector3f& r = (*rays)[p];
       if (r.z() <= 0) continue;
       const Eigen::Vector3f d = R * r;
@@ -156,7 +157,7 @@ ImageF MeshRaycaster::distance_image(const Intrinsics& K, const Eigen::Isometry3
       rh.ray.org_x[k] = o.x(), rh.ray.org_y[k] = o.y(), rh.ray.org_z[k] = o.z();
       rh.ray.dir_x[k] = d.x(), rh.ray.dir_y[k] = d.y(), rh.ray.dir_z[k] = d.z();
       rh.ray.tnear[k] = 0;
-      rh.ray.tfar[k] = std::numeric_limits<float>::infinity();
+      rh.ray.tfar[k] = far;
       rh.ray.time[k] = 0;
       rh.ray.mask[k] = 0xffffffffu;
       rh.ray.id[k] = 0;

@@ -23,10 +23,10 @@ class MeshRaycaster {
 
   // Distance along each pixel's ray (through the lens model) to the first hit,
   // 0 where the ray misses. Pixels are sampled at their centres. With
-  // `wanted` (one byte per pixel), only the pixels marked non-zero are cast;
-  // the others stay 0.
+  // `reach` (an image of K's size), a pixel's ray is cast only when its reach
+  // is > 0, and only that far: a hit beyond it reads as a miss.
   ImageF distance_image(const Intrinsics& K, const Eigen::Isometry3d& world_from_camera, int threads = 0,
-                        const std::vector<uint8_t>* wanted = nullptr) const;
+                        const ImageF* reach = nullptr) const;
   // Computes and keeps the pixel rays of `K` (distance_image does on first
   // use): callers that cast from several threads prepare them once, in parallel.
   void prepare_rays(const Intrinsics& K, int threads = 0) const;

@@ -579,15 +579,27 @@ Mesh SparseVolume::surface_mesh(const std::vector<EvidenceVoxel>& evidence) cons
   // Depth surface: the fused distances where observed, meshed only around
   // surface voxels (the band's far side borders unobserved space and must not
   // become a wall).
-  auto sdf = openvdb::FloatGrid::create(float(m.tau));
+  // The distances: a float tree of the volume's topology, filled leaf by leaf
+  // (a voxel never observed is left inactive at the background).
+  const float background = float(m.tau);
+  auto sdf = openvdb::FloatGrid::create(openvdb::FloatTree::Ptr(
+      new openvdb::FloatTree(m.tsdf->tree(), background, openvdb::TopologyCopy())));
   sdf->setTransform(m.tsdf->transform().copy());
   sdf->setGridClass(openvdb::GRID_LEVEL_SET);
+  {
+    openvdb::tree::LeafManager<openvdb::FloatTree> lm(sdf->tree());
+    lm.foreach([&](openvdb::FloatTree::LeafNodeType& leaf, size_t) {
+      const auto* src = m.tsdf->tree().probeConstLeaf(leaf.origin());
+      for (openvdb::Index i = 0; i < openvdb::FloatTree::LeafNodeType::SIZE; ++i) {
+        const bool observed = src && src->isValueOn(i) && src->getValue(i)[1] > 0;
+        if (observed) leaf.setValueOn(i, src->getValue(i)[0]);
+        else leaf.setValueOff(i, background);
+      }
+    });
+  }
   auto mask = openvdb::BoolGrid::create(false);
   mask->setTransform(m.tsdf->transform().copy());
   {
-    auto sacc = sdf->getAccessor();
-    for (auto it = m.tsdf->cbeginValueOn(); it; ++it)
-      if ((*it)[1] > 0 && it.isVoxelValue()) sacc.setValue(it.getCoord(), (*it)[0]);
     auto macc = mask->getAccessor();
     for (const auto& e : evidence)
       if (!e.fuzzy) macc.setValueOn(Coord(e.ijk.x(), e.ijk.y(), e.ijk.z()), true);

@@ -122,6 +122,7 @@ FacetStats build_facets(const std::vector<EvidenceVoxel>& ev, const std::vector<
     const Eigen::Isometry3d inv = c.world_from_camera.inverse();
     xf.push_back({inv.linear().cast<float>(), inv.translation().cast<float>()});
   }
+  auto tolerance = [](const Draft& d) { return 0.5f * std::sqrt(3.f) * d.size; };
   // The cameras' depth: given, or asked for at just the pixels the test below
   // reads (the same pixel for the same facet and camera).
   auto pixel_of = [&](size_t c, const Eigen::Vector3f& centre, Eigen::Vector3f* pc_out) -> int {
@@ -141,11 +142,21 @@ FacetStats build_facets(const std::vector<EvidenceVoxel>& ev, const std::vector<
     const size_t c = size_t(ci);
     depth[c] = cameras[c].distance;
     if (depth[c] || !cameras[c].distance_at) return;
+    // A facet is hidden by a hit nearer than its distance less its tolerance:
+    // a pixel's ray need go no further than the largest of those.
     const Intrinsics& K = cameras[c].intrinsics;
-    std::vector<uint8_t> wanted(size_t(K.width) * size_t(K.height), 0);
-    for (const Draft& d : drafts)
-      if (const int p = pixel_of(c, d.centre, nullptr); p >= 0) asked_pixels[c] += !wanted[size_t(p)], wanted[size_t(p)] = 1;
-    asked[c] = cameras[c].distance_at(wanted);
+    ImageF reach(K.width, K.height, 1, 0.f);
+    for (const Draft& d : drafts) {
+      Eigen::Vector3f pc;
+      const int p = pixel_of(c, d.centre, &pc);
+      if (p < 0) continue;
+      const float hide = pc.norm() - tolerance(d);
+      if (!(hide > 0)) continue;  // the camera is within the facet: nothing can hide it
+      float& r = reach.data[size_t(p)];
+      asked_pixels[c] += r == 0;
+      r = std::max(r, hide);
+    }
+    asked[c] = cameras[c].distance_at(reach);
     depth[c] = &asked[c];
   });
   for (size_t n : asked_pixels) st.depth_pixels_asked += n;
@@ -157,7 +168,7 @@ FacetStats build_facets(const std::vector<EvidenceVoxel>& ev, const std::vector<
     const size_t end = std::min(drafts.size(), size_t(ci + 1) * chunk);
     for (size_t i = size_t(ci) * chunk; i < end; ++i) {
       const Draft& d = drafts[i];
-      const float tol = 0.5f * std::sqrt(3.f) * d.size;
+      const float tol = tolerance(d);
       for (size_t c = 0; c < cameras.size(); ++c) {
         Eigen::Vector3f pc;
         const int p = pixel_of(c, d.centre, &pc);

@@ -48,10 +48,11 @@ struct FacetCamera {
   Intrinsics intrinsics;
   Eigen::Isometry3d world_from_camera = Eigen::Isometry3d::Identity();
   const ImageF* distance = nullptr;  // per-camera depth: distance along the ray, 0 = miss
-  // Without `distance`: the depth at just the pixels marked in `wanted` (one
-  // byte per pixel), the others 0. build_facets marks the pixels its test
-  // reads, so a model without textures casts those rays only.
-  std::function<ImageF(const std::vector<uint8_t>& wanted)> distance_at;
+  // Without `distance`: the depth at just the pixels whose `reach` is > 0,
+  // hits beyond the reach (and elsewhere) 0. build_facets asks for the pixels
+  // its test reads, each as far as a hit could still hide a facet there, so a
+  // model without textures casts those rays only, and not through the facets.
+  std::function<ImageF(const ImageF& reach)> distance_at;
 };
 
 struct FacetOptions {

@@ -430,8 +430,8 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
     FacetCamera c{views[i].K, views[i].world_from_camera, job.textures ? &distance[i] : nullptr, {}};
     if (!job.textures) {
       if (i == 0) (*caster)->prepare_rays(views[i].K, job.threads);
-      c.distance_at = [&, i](const std::vector<uint8_t>& wanted) {
-        return (*caster)->distance_image(views[i].K, views[i].world_from_camera, 1, &wanted);
+      c.distance_at = [&, i](const ImageF& reach) {
+        return (*caster)->distance_image(views[i].K, views[i].world_from_camera, 1, &reach);
       };
     }
     fc.push_back(std::move(c));
