@@ -20,7 +20,7 @@ namespace s2r {
 namespace {
 namespace fs = std::filesystem;
 
-pid_t spawn(const fs::path& out, bool resume, bool quiet_output = true) {
+pid_t spawn(const fs::path& out, bool resume, int settle_ms = 0, bool quiet_output = true) {
   pid_t pid = fork();
   if (pid == 0) {
     if (quiet_output) {
@@ -29,7 +29,7 @@ pid_t spawn(const fs::path& out, bool resume, bool quiet_output = true) {
     }
     const std::string bin = std::string(S2R_BINARY_DIR) + "/app/s2r";
     std::vector<std::string> args = {bin, "-q", "capture", "--sim", "--steps", "24", "--width", "96", "--height", "72",
-                                     "--settle-ms", "0", "--out", out.string()};
+                                     "--settle-ms", std::to_string(settle_ms), "--out", out.string()};
     if (resume) args.push_back("--resume");
     std::vector<char*> argv;
     for (auto& a : args) argv.push_back(a.data());
@@ -72,7 +72,11 @@ TEST(CaptureKill, TwentySigkillsThenResumeLosesNothing) {
   int kills = 0, mid_session = 0;
   bool first = true;
   while (kills < 20) {
-    const pid_t pid = spawn(out, !first);
+    // 150 ms of settling per step: a run gets a few frames in before its
+    // kill (at most ~8 within the longest delay), so kills keep landing while
+    // it captures however fast the machine is; with none, a fast machine
+    // finished the session within four kills.
+    const pid_t pid = spawn(out, !first, 150);
     first = false;
     std::this_thread::sleep_for(std::chrono::milliseconds(delay_ms(rng)));
     kill(pid, SIGKILL);
