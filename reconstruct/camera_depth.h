@@ -3,7 +3,6 @@
 // along its ray. Ray casting on Embree (only camera_depth.cpp includes it).
 #pragma once
 
-#include <cstdint>
 #include <memory>
 #include <vector>
 

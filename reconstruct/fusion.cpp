@@ -3,9 +3,10 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <cmath>
+#include <limits>
 #include <mutex>
-#include <unordered_set>
 
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/Morphology.h>
@@ -264,7 +265,7 @@ void SparseVolume::integrate(const DepthObservation& v, int threads) {
               if (sdf < -tau) continue;  // far behind the surface: unknown
               const float s = std::clamp(sdf, -behind, tau);
               // The same layout in both trees' leaves.
-              openvdb::Vec3s& vv = val[(i << 6) | (j << 3) | k];
+              openvdb::Vec3s& vv = val[(i * D + j) * D + k];
               const float n = vv[1] + 1.f;
               const float delta = s - vv[0];
               vv[0] += delta / n;
@@ -444,9 +445,9 @@ std::vector<EvidenceVoxel> SparseVolume::evidence(double reliability_sigma_m) co
   tbb::parallel_for(tbb::blocked_range<size_t>(0, lm.leafCount()), [&](const tbb::blocked_range<size_t>& range) {
     auto acc = m.tsdf->getConstAccessor();
     auto value = [&](const Coord& c, openvdb::Vec3s& v) { return acc.probeValue(c, v) && v[1] > 0; };
-    for (size_t li = range.begin(); li != range.end(); ++li)
+    for (size_t li = range.begin(); li != range.end(); ++li) {
+      std::vector<EvidenceVoxel>& out = per_leaf[li];
       for (auto it = lm.leaf(li).cbeginValueOn(); it; ++it) {
-        std::vector<EvidenceVoxel>& out = per_leaf[li];
         const openvdb::Vec3s v = *it;
         if (v[1] <= 0) continue;
         const Coord c = it.getCoord();
@@ -512,6 +513,7 @@ std::vector<EvidenceVoxel> SparseVolume::evidence(double reliability_sigma_m) co
         e.reliability = depth_reliability(e.views, e.spread_m, reliability_sigma_m);
         out.push_back(e);
       }
+    }
   });
   std::vector<EvidenceVoxel> out;
   size_t total = 0;

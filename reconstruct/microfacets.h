@@ -3,9 +3,8 @@
 // that see it, and the error bound that ties facet size to camera spacing.
 #pragma once
 
-#include <functional>
-
 #include <cstdint>
+#include <functional>
 #include <vector>
 
 #include <Eigen/Geometry>

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <numbers>
+#include <optional>
 #include <set>
 
 #include <spdlog/fmt/fmt.h>
@@ -389,7 +390,8 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   {
     // Every pixel's distance goes into the textures; without textures the
     // facets' visibility test asks for the pixels it reads, and only those.
-    Progress progress("camera depth", job.textures ? views.size() : 0);
+    std::optional<Progress> progress;
+    if (job.textures) progress.emplace("camera depth", views.size());
     for (size_t i = 0; i < views.size(); ++i) {
       const View& v = views[i];
       if (job.textures) distance[i] = (*caster)->distance_image(v.K, v.world_from_camera, job.threads);
@@ -399,9 +401,9 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
       mc.session_frame = v.frame;
       if (job.textures) mc.texture = "cameras/" + frame_file_name(v.frame, "exr");
       model.cameras.push_back(mc);
-      if (job.textures) progress.tick();
+      if (progress) progress->tick();
     }
-    progress.done();
+    if (progress) progress->done();
   }
   timer.lap("camera_depth");
   if (job.textures) {
@@ -425,15 +427,15 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   timer.lap("textures");
 
   // Facets.
+  // Cast from one thread per camera: the pixel rays are prepared first, in parallel.
+  if (!job.textures) (*caster)->prepare_rays(views.front().K, job.threads);
   std::vector<FacetCamera> fc;
   for (size_t i = 0; i < views.size(); ++i) {
     FacetCamera c{views[i].K, views[i].world_from_camera, job.textures ? &distance[i] : nullptr, {}};
-    if (!job.textures) {
-      if (i == 0) (*caster)->prepare_rays(views[i].K, job.threads);
+    if (!job.textures)
       c.distance_at = [&, i](const ImageF& reach) {
         return (*caster)->distance_image(views[i].K, views[i].world_from_camera, 1, &reach);
       };
-    }
     fc.push_back(std::move(c));
   }
   FacetOptions fo;
