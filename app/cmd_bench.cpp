@@ -1070,7 +1070,7 @@ void add_bench_commands(CLI::App& app) {
   auto repeats = std::make_shared<int>(3);
   auto scene = std::make_shared<std::string>("blob");
   sub->add_option("stage", *stage, "rig (render time vs image size), capture (per-frame decode + write overhead), calibrate (error vs views), "
-                  "register (pose error vs seconds, Stanford ring scans, against chained PCL ICP; --repeats = seeds), "
+                  "register (Stanford bunny ring-scan pose error vs seconds: ours on all ten scans and on the ring alone, against PCL ICP chained around the ring; --repeats = seeds), "
                   "reconstruct (surface error and build seconds vs facet size on the rig, against Open3D TSDF + marching cubes), "
                   "render (held-out PSNR vs 1280x720 frame ms per drawing setting, rig bunny and fuzzy, textured meshes in the same run), "
                   "raytrace (the seed's four CAVE scenes: visual-field LOD time vs the full render, gaze forward and down, PSNR inside "
