@@ -1,8 +1,11 @@
 #include "reconstruct/camera_depth.h"
 
 #include <algorithm>
+#include <array>
+#include <cmath>
 #include <limits>
 #include <mutex>
+#include <numbers>
 
 #include <embree3/rtcore.h>
 
@@ -117,17 +120,13 @@ std::shared_ptr<const std::vector<Eigen::Vector3f>> MeshRaycaster::rays_of(const
   return impl_->rays;
 }
 
-void MeshRaycaster::prepare_rays(const Intrinsics& K, int threads) const { rays_of(K, threads); }
-
-ImageF MeshRaycaster::distance_image(const Intrinsics& K, const Eigen::Isometry3d& world_from_camera, int threads,
-                                     const ImageF* reach) const {
+ImageF MeshRaycaster::distance_image(const Intrinsics& K, const Eigen::Isometry3d& world_from_camera, int threads) const {
   ImageF out(K.width, K.height, 1, 0.f);
-  if (reach && (reach->width != K.width || reach->height != K.height)) reach = nullptr;  // another size: every pixel
   const Eigen::Matrix3f R = world_from_camera.linear().cast<float>();
   const Eigen::Vector3f o = world_from_camera.translation().cast<float>();
   const std::shared_ptr<const std::vector<Eigen::Vector3f>> rays = rays_of(K, threads);
   // Eight pixels of a row at a time, of those whose rays meet the mesh's
-  // bounds (and are wanted): neighbouring rays traced as one packet.
+  // bounds: neighbouring rays traced as one packet.
   parallel_for(K.height, worker_count(threads), [&](int y) {
     RTCIntersectContext ctx;
     rtcInitIntersectContext(&ctx);
@@ -144,10 +143,7 @@ ImageF MeshRaycaster::distance_image(const Intrinsics& K, const Eigen::Isometry3
       lanes = 0;
     };
     for (int x = 0; x < K.width; ++x) {
-      const size_t p = size_t(y) * K.width + x;
-      const float far = reach ? reach->data[p] : std::numeric_limits<float>::infinity();
-      if (!(far > 0)) continue;
-      const Eigen::Vector3f& r = (*rays)[p];
+      const Eigen::Vector3f& r = (*rays)[size_t(y) * K.width + x];
       if (r.z() <= 0) continue;
       const Eigen::Vector3f d = R * r;
       if (!meets(impl_->bounds, o, d)) continue;
@@ -157,7 +153,7 @@ ImageF MeshRaycaster::distance_image(const Intrinsics& K, const Eigen::Isometry3
       rh.ray.org_x[k] = o.x(), rh.ray.org_y[k] = o.y(), rh.ray.org_z[k] = o.z();
       rh.ray.dir_x[k] = d.x(), rh.ray.dir_y[k] = d.y(), rh.ray.dir_z[k] = d.z();
       rh.ray.tnear[k] = 0;
-      rh.ray.tfar[k] = far;
+      rh.ray.tfar[k] = std::numeric_limits<float>::infinity();
       rh.ray.time[k] = 0;
       rh.ray.mask[k] = 0xffffffffu;
       rh.ray.id[k] = 0;
@@ -169,6 +165,360 @@ ImageF MeshRaycaster::distance_image(const Intrinsics& K, const Eigen::Isometry3
     if (lanes) trace();
   });
   return out;
+}
+
+// --- Rasterizer ------------------------------------------------------------
+
+namespace {
+
+// A camera's pixel rays and where its lens model can be inverted: rays are
+// normalised coordinates (x/z, y/z) of the pixel centres (NaN where
+// undistortion fails) with their length |(x/z, y/z, 1)| apart, the
+// window bounds the rays' normalised coordinates (x/z, y/z), and within
+// radius `valid_r` (normalised) the radial distortion is monotonic, so a
+// vertex there projects to one place.
+struct PixelRays {
+  Intrinsics K;
+  std::vector<Eigen::Vector2f> rays;
+  std::vector<float> length;
+  float x0 = 0, x1 = 0, y0 = 0, y1 = 0;  // normalised window of the image, a little enlarged
+  float valid_r2 = std::numeric_limits<float>::infinity();
+  // How far the lens bows a straight edge: a chord of L pixels strays at
+  // most bow L^2 pixels from the projected edge (max |P''| / (8 m^2) over the
+  // window, P the lens map, m its smallest scale). 0 for a pinhole.
+  float bow = 0;
+};
+
+std::shared_ptr<const PixelRays> make_pixel_rays(const Intrinsics& K, int threads) {
+  auto pr = std::make_shared<PixelRays>();
+  pr->K = K;
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  pr->rays.assign(size_t(K.width) * K.height, Eigen::Vector2f(nan, nan));
+  pr->length.assign(size_t(K.width) * K.height, 0.f);
+  // Undistorting every pixel is the costly part: rows in parallel.
+  struct Bounds {
+    float x0 = std::numeric_limits<float>::infinity(), x1 = -x0, y0 = x0, y1 = -x0, r2max = 0;
+  };
+  std::vector<Bounds> rows(size_t(std::max(K.height, 0)));
+  parallel_for(K.height, worker_count(threads), [&](int y) {
+    Bounds& b = rows[size_t(y)];
+    for (int x = 0; x < K.width; ++x) {
+      const auto ray = K.ray({double(x), double(y)});
+      if (!ray || !ray->allFinite()) continue;
+      pr->rays[size_t(y) * K.width + x] = ray->head<2>().cast<float>();
+      pr->length[size_t(y) * K.width + x] = float(ray->norm());
+      const float xn = float(ray->x()), yn = float(ray->y());
+      b.x0 = std::min(b.x0, xn), b.x1 = std::max(b.x1, xn), b.y0 = std::min(b.y0, yn), b.y1 = std::max(b.y1, yn);
+      b.r2max = std::max(b.r2max, xn * xn + yn * yn);
+    }
+  });
+  float x0 = std::numeric_limits<float>::infinity(), x1 = -x0, y0 = x0, y1 = -x0, r2max = 0;
+  for (const Bounds& b : rows)
+    x0 = std::min(x0, b.x0), x1 = std::max(x1, b.x1), y0 = std::min(y0, b.y0), y1 = std::max(y1, b.y1),
+    r2max = std::max(r2max, b.r2max);
+  const float mx = 2.f / float(K.fx), my = 2.f / float(K.fy);  // two pixels of margin
+  pr->x0 = x0 - mx, pr->x1 = x1 + mx, pr->y0 = y0 - my, pr->y1 = y1 + my;
+  if (K.has_distortion()) {
+    // The first radius (up to four times the image's) where r (1 + k1 r^2 +
+    // k2 r^4 + k3 r^6) stops growing; at least the image's own.
+    const double k1 = K.dist[0], k2 = K.dist[1], k3 = K.dist[4];
+    const double rmax = std::sqrt(double(r2max)), limit = 4 * rmax;
+    double valid = limit;
+    for (double r = 0; r <= limit; r += limit / 4000) {
+      const double r2 = r * r;
+      if (1 + r2 * (3 * k1 + r2 * (5 * k2 + 7 * k3 * r2)) <= 0) {
+        valid = r;
+        break;
+      }
+    }
+    // The window's corners too: clipped triangles are projected up to them.
+    const double corner = std::sqrt(std::max(double(pr->x0) * pr->x0, double(pr->x1) * pr->x1) +
+                                    std::max(double(pr->y0) * pr->y0, double(pr->y1) * pr->y1));
+    valid = std::max(valid, corner * 1.01);
+    pr->valid_r2 = float(valid * valid);
+    // The bow, by finite differences on a grid over the window (and a
+    // factor of 1.5 for what the grid misses).
+    auto P = [&](double x, double y) {
+      const Eigen::Vector2d d = K.distort(Eigen::Vector2d(x, y));
+      return std::array<double, 2>{K.fx * d.x(), K.fy * d.y()};
+    };
+    const double h = 1e-3;
+    double second = 0, scale = std::numeric_limits<double>::infinity();
+    for (int i = 0; i <= 32; ++i)
+      for (int j = 0; j <= 32; ++j) {
+        const double qx = pr->x0 + (pr->x1 - pr->x0) * i / 32.0, qy = pr->y0 + (pr->y1 - pr->y0) * j / 32.0;
+        const auto c = P(qx, qy), xp = P(qx + h, qy), xm = P(qx - h, qy), yp = P(qx, qy + h), ym = P(qx, qy - h);
+        // The Jacobian's smallest singular value (closed form for 2 x 2).
+        const double a = (xp[0] - xm[0]) / (2 * h), b = (yp[0] - ym[0]) / (2 * h);
+        const double cc = (xp[1] - xm[1]) / (2 * h), d = (yp[1] - ym[1]) / (2 * h);
+        const double t = a * a + b * b + cc * cc + d * d, det = a * d - b * cc;
+        scale = std::min(scale, std::sqrt(std::max(0.0, (t - std::sqrt(std::max(0.0, t * t - 4 * det * det))) / 2)));
+        for (int k = 0; k < 4; ++k) {
+          const double dx = h * std::cos(k * std::numbers::pi / 4), dy = h * std::sin(k * std::numbers::pi / 4);
+          const auto p = P(qx + dx, qy + dy), m = P(qx - dx, qy - dy);
+          second = std::max(second, std::hypot(p[0] + m[0] - 2 * c[0], p[1] + m[1] - 2 * c[1]) / (h * h));
+        }
+      }
+    pr->bow = scale > 0 ? float(1.5 * second / (8 * scale * scale)) : std::numeric_limits<float>::infinity();
+  }
+  return pr;
+}
+
+// The exact cone test of one triangle (camera frame, camera at the origin): a
+// ray u = (x/z, y/z, 1) meets it (in front) when s e[k].u >= 0 for all k,
+// with e[k] the plane through the origin and the edge opposite vertex k and s
+// the sign of det(a, b, c). Its depth is then z = d / n.u for the triangle's
+// plane n.p = d (the distance along the ray is z |u|): well conditioned where
+// the barycentric sums are not (the e[k] are nearly perpendicular to the
+// rays, and their dot products cancel).
+struct TriangleTest {
+  Eigen::Vector3f e[3];
+  Eigen::Vector3f n;
+  float d;
+};
+
+class Raster {
+ public:
+  Raster(const PixelRays& pr, ImageF& depth, MeshRasterizer::Stats& st) : pr_(pr), K_(pr.K), depth_(depth), st_(st) {
+    distorted_ = K_.has_distortion();
+    for (int k = 0; k < 5; ++k) dist_[k] = float(K_.dist[size_t(k)]);
+  }
+
+  // Normalised (x/z, y/z) -> pixel through the lens model (float).
+  Eigen::Vector2f pixel(float xn, float yn) const {
+    float x = xn, y = yn;
+    if (distorted_) {
+      const float r2 = xn * xn + yn * yn;
+      const float radial = 1 + r2 * (dist_[0] + r2 * (dist_[1] + r2 * dist_[4]));
+      x = xn * radial + 2 * dist_[2] * xn * yn + dist_[3] * (r2 + 2 * xn * xn);
+      y = yn * radial + dist_[2] * (r2 + 2 * yn * yn) + 2 * dist_[3] * xn * yn;
+    }
+    return {float(K_.fx) * x + float(K_.cx), float(K_.fy) * y + float(K_.cy)};
+  }
+  // Whether a camera-frame point projects within the lens model's valid field.
+  bool projectable(const Eigen::Vector3f& p) const {
+    if (!(p.z() > kNear)) return false;
+    const float xn = p.x() / p.z(), yn = p.y() / p.z();
+    return xn * xn + yn * yn <= pr_.valid_r2;
+  }
+
+  // The triangle's pixels when its vertices alone do not bound them (behind
+  // the camera, beyond the lens model's field, or wide under distortion): the
+  // triangle clipped to the view's frustum (near plane and the image's
+  // normalised window), its edges sampled through the lens every few pixels.
+  void clipped(const TriangleTest& t, const Eigen::Vector3f& a, const Eigen::Vector3f& b, const Eigen::Vector3f& c) {
+    std::vector<Eigen::Vector3f> poly{a, b, c}, next;
+    // Planes as (x, y, z) coefficients: inside where n.p >= offset (near plane only).
+    const Eigen::Vector3f planes[5] = {{0, 0, 1}, {1, 0, -pr_.x0}, {-1, 0, pr_.x1}, {0, 1, -pr_.y0}, {0, -1, pr_.y1}};
+    for (int k = 0; k < 5 && !poly.empty(); ++k) {
+      const float off = k == 0 ? kNear : 0.f;
+      next.clear();
+      for (size_t i = 0; i < poly.size(); ++i) {
+        const Eigen::Vector3f &p = poly[i], &q = poly[(i + 1) % poly.size()];
+        const float dp = planes[k].dot(p) - off, dq = planes[k].dot(q) - off;
+        if (dp >= 0) next.push_back(p);
+        if ((dp >= 0) != (dq >= 0)) next.push_back(p + (q - p) * (dp / (dp - dq)));
+      }
+      poly.swap(next);
+    }
+    if (poly.empty()) {
+      ++st_.triangles_culled;
+      return;
+    }
+    Eigen::Vector2f lo = Eigen::Vector2f::Constant(std::numeric_limits<float>::infinity()), hi = -lo;
+    auto add = [&](const Eigen::Vector3f& p) {
+      const float z = std::max(p.z(), kNear);
+      const Eigen::Vector2f q = pixel(p.x() / z, p.y() / z);
+      lo = lo.cwiseMin(q), hi = hi.cwiseMax(q);
+    };
+    float longest = 0;
+    for (size_t i = 0; i < poly.size(); ++i) {
+      const Eigen::Vector3f &p = poly[i], &q = poly[(i + 1) % poly.size()];
+      int n = 1;
+      if (distorted_) {
+        const float zp = std::max(p.z(), kNear), zq = std::max(q.z(), kNear);
+        const float len = (pixel(p.x() / zp, p.y() / zp) - pixel(q.x() / zq, q.y() / zq)).norm();
+        n = std::clamp(int(std::ceil(len / 8)), 1, 256);
+        longest = std::max(longest, len / float(n));
+      }
+      for (int j = 0; j < n; ++j) add(p + (q - p) * (float(j) / float(n)));
+    }
+    // Edges sampled every 8 pixels or closer (at most 256 samples, past which the
+    // pad grows with the longest piece).
+    pixels(t, lo, hi, kRound + pr_.bow * longest * longest);
+  }
+
+  // Tests the pixels whose centres lie within `pad` of [lo, hi].
+  void pixels(const TriangleTest& t, const Eigen::Vector2f& lo, const Eigen::Vector2f& hi, float pad) {
+    const int xa = std::max(0, int(std::ceil(lo.x() - pad))), xb = std::min(K_.width - 1, int(std::floor(hi.x() + pad)));
+    const int ya = std::max(0, int(std::ceil(lo.y() - pad))), yb = std::min(K_.height - 1, int(std::floor(hi.y() + pad)));
+    if (xa > xb || ya > yb) {
+      ++st_.triangles_culled;
+      return;
+    }
+    ++st_.triangles_drawn;
+    st_.pixels_tested += size_t(xb - xa + 1) * size_t(yb - ya + 1);
+    for (int y = ya; y <= yb; ++y) {
+      const size_t row = size_t(y) * size_t(K_.width);
+      for (int x = xa; x <= xb; ++x) {
+        const Eigen::Vector2f& u = pr_.rays[row + size_t(x)];
+        auto dot = [&](const Eigen::Vector3f& e) { return e.x() * u.x() + e.y() * u.y() + e.z(); };
+        if (!(dot(t.e[0]) >= 0 && dot(t.e[1]) >= 0 && dot(t.e[2]) >= 0)) continue;  // NaN rays fail here
+        const float d = t.d / dot(t.n);
+        if (!(d > 0)) continue;
+        float& z = depth_.data[row + size_t(x)];
+        if (d < z) z = d;
+      }
+    }
+  }
+
+ private:
+  static constexpr float kNear = 1e-6f;   // metres in front of the centre
+
+ public:
+  static constexpr float kRound = 1e-3f;  // pixels: what float rounding may move a projected vertex
+  float bow() const { return pr_.bow; }
+
+ private:
+
+  const PixelRays& pr_;
+  const Intrinsics& K_;
+  ImageF& depth_;
+  MeshRasterizer::Stats& st_;
+  bool distorted_ = false;
+  float dist_[5];
+};
+
+}  // namespace
+
+struct MeshRasterizer::Impl {
+  // The mesh reordered for locality: faces along a Morton curve of their
+  // centres, vertices numbered as the faces first use them (each camera
+  // walks every face once, and their vertices are then mostly in cache).
+  std::vector<Eigen::Vector3f> vertices;
+  std::vector<Eigen::Vector3i> faces;
+  std::mutex rays_mutex;
+  std::vector<std::shared_ptr<const PixelRays>> rays;  // one per intrinsics seen
+};
+
+MeshRasterizer::MeshRasterizer(const Mesh& mesh) : impl_(std::make_unique<Impl>()) {
+  Impl& m = *impl_;
+  const int nv = int(mesh.vertices.size());
+  Eigen::AlignedBox3f box;
+  for (const auto& v : mesh.vertices) box.extend(v);
+  const Eigen::Vector3f lo = box.isEmpty() ? Eigen::Vector3f::Zero() : box.min();
+  const Eigen::Vector3f scale =
+      box.isEmpty() ? Eigen::Vector3f::Ones() : Eigen::Vector3f(1023.f / box.sizes().cwiseMax(1e-12f).array()).eval();
+  auto spread = [](uint32_t x) {  // 10 bits to every third of 30
+    x &= 0x3ff;
+    x = (x | x << 16) & 0x030000ff, x = (x | x << 8) & 0x0300f00f;
+    x = (x | x << 4) & 0x030c30c3, x = (x | x << 2) & 0x09249249;
+    return x;
+  };
+  std::vector<std::pair<uint32_t, uint32_t>> order;  // (Morton code, face)
+  order.reserve(mesh.faces.size());
+  for (size_t f = 0; f < mesh.faces.size(); ++f) {
+    const Eigen::Vector3i& v = mesh.faces[f];
+    bool ok = true;
+    for (int k = 0; k < 3; ++k) ok = ok && v[k] >= 0 && v[k] < nv;
+    if (!ok) continue;  // a face naming no vertex is no triangle
+    const Eigen::Vector3f c = (mesh.vertices[size_t(v[0])] + mesh.vertices[size_t(v[1])] + mesh.vertices[size_t(v[2])]) / 3;
+    const Eigen::Vector3f q = (c - lo).cwiseProduct(scale).cwiseMax(0.f).cwiseMin(1023.f);
+    order.push_back({spread(uint32_t(q.x())) | spread(uint32_t(q.y())) << 1 | spread(uint32_t(q.z())) << 2, uint32_t(f)});
+  }
+  std::sort(order.begin(), order.end());
+  std::vector<int> renumber(mesh.vertices.size(), -1);
+  m.faces.reserve(order.size());
+  for (const auto& [code, f] : order) {
+    Eigen::Vector3i face;
+    for (int k = 0; k < 3; ++k) {
+      int& r = renumber[size_t(mesh.faces[f][k])];
+      if (r < 0) r = int(m.vertices.size()), m.vertices.push_back(mesh.vertices[size_t(mesh.faces[f][k])]);
+      face[k] = r;
+    }
+    m.faces.push_back(face);
+  }
+}
+
+MeshRasterizer::~MeshRasterizer() = default;
+size_t MeshRasterizer::triangles() const { return impl_->faces.size(); }
+
+void MeshRasterizer::prepare(const Intrinsics& K, int threads) const { rays_of(K, threads); }
+
+std::shared_ptr<const void> MeshRasterizer::rays_of(const Intrinsics& K, int threads) const {
+  std::lock_guard<std::mutex> lock(impl_->rays_mutex);
+  for (const auto& r : impl_->rays)
+    if (r->K.K() == K.K() && r->K.dist == K.dist && r->K.width == K.width && r->K.height == K.height) return r;
+  impl_->rays.push_back(make_pixel_rays(K, threads));
+  return impl_->rays.back();
+}
+
+ImageF MeshRasterizer::distance_image(const Intrinsics& K, const Eigen::Isometry3d& world_from_camera, Stats* stats) const {
+  const Impl& m = *impl_;
+  const auto pr = std::static_pointer_cast<const PixelRays>(rays_of(K, 1));
+  ImageF depth(K.width, K.height, 1, std::numeric_limits<float>::infinity());
+  Stats st;
+  Raster raster(*pr, depth, st);
+  const Eigen::Isometry3d camera_from_world = world_from_camera.inverse();
+  const Eigen::Matrix3f R = camera_from_world.linear().cast<float>();
+  const Eigen::Vector3f tr = camera_from_world.translation().cast<float>();
+  // Every vertex in the camera frame and, where it can be projected, its pixel (NaN elsewhere).
+  struct Vertex {
+    Eigen::Vector3f p;
+    Eigen::Vector2f px;
+  };
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  std::vector<Vertex> vs(m.vertices.size());
+  for (size_t i = 0; i < m.vertices.size(); ++i) {
+    Vertex& v = vs[i];
+    v.p = R * m.vertices[i] + tr;
+    v.px = raster.projectable(v.p) ? raster.pixel(v.p.x() / v.p.z(), v.p.y() / v.p.z()) : Eigen::Vector2f(nan, nan);
+  }
+  const bool distorted = K.has_distortion();
+  const float W = float(K.width), H = float(K.height);
+  for (const Eigen::Vector3i& f : m.faces) {
+    const Vertex &va = vs[size_t(f[0])], &vb = vs[size_t(f[1])], &vc = vs[size_t(f[2])];
+    const Eigen::Vector2f lo = va.px.cwiseMin(vb.px).cwiseMin(vc.px), hi = va.px.cwiseMax(vb.px).cwiseMax(vc.px);
+    const bool projected = lo.allFinite() && hi.allFinite();
+    // A projected triangle wholly off the image (a pixel of margin) is culled here.
+    if (projected && (hi.x() < -1.5f || hi.y() < -1.5f || lo.x() > W + 0.5f || lo.y() > H + 0.5f)) {
+      ++st.triangles_culled;
+      continue;
+    }
+    // The plane through the camera centre and each edge, from the edge's
+    // vertices in ascending index order: the two triangles on an edge
+    // compute it bitwise the same (up to sign), so they leave no crack.
+    TriangleTest t;
+    for (int k = 0; k < 3; ++k) {
+      const int i = f[(k + 1) % 3], j = f[(k + 2) % 3];
+      const Eigen::Vector3f &p = vs[size_t(std::min(i, j))].p, &q = vs[size_t(std::max(i, j))].p;
+      t.e[k] = p.cross(q - p);
+      if (i > j) t.e[k] = -t.e[k];
+    }
+    const Eigen::Vector3f &a = va.p, &b = vb.p, &c = vc.p;
+    const float det = a.dot(t.e[0]);
+    if (!(det != 0) || !std::isfinite(det)) {
+      ++st.triangles_culled;  // edge-on: its plane holds the camera centre
+      continue;
+    }
+    if (det < 0)
+      for (auto& e : t.e) e = -e;
+    t.n = (b - a).cross(c - a);
+    t.d = float(t.n.cast<double>().dot(a.cast<double>()));
+    // Under distortion a triangle's edges bow out of its vertices' box: by
+    // a fraction of a pixel for small ones, which get that much margin; wide
+    // ones are bounded by their edges' samples.
+    const float extent = (hi - lo).norm();  // the longest edge is at most the box's diagonal
+    if (projected && !(distorted && extent > 16.f)) raster.pixels(t, lo, hi, Raster::kRound + raster.bow() * extent * extent);
+    else raster.clipped(t, a, b, c);
+  }
+  // Depth along the axis to distance along the ray; misses to 0.
+  for (size_t p = 0; p < depth.data.size(); ++p) {
+    float& d = depth.data[p];
+    d = d < std::numeric_limits<float>::infinity() ? d * pr->length[p] : 0.f;
+  }
+  if (stats) *stats = st;
+  return depth;
 }
 
 }  // namespace s2r

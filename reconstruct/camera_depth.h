@@ -1,6 +1,9 @@
 // Per-camera depth (DESIGN.md section 6.2): the fused geometry seen from every
 // input camera, so each texel has its colour and the distance d to the object
-// along its ray. Ray casting on Embree (only camera_depth.cpp includes it).
+// along its ray. Two ways to the same image: a z-buffer rasterizer whose
+// per-pixel test is the exact ray-triangle test (what reconstruct uses: its
+// cost goes with the triangles, not the pixels), and ray casting on Embree
+// (the reference; only camera_depth.cpp includes it).
 #pragma once
 
 #include <memory>
@@ -21,14 +24,8 @@ class MeshRaycaster {
   ~MeshRaycaster();
 
   // Distance along each pixel's ray (through the lens model) to the first hit,
-  // 0 where the ray misses. Pixels are sampled at their centres. With
-  // `reach` (an image of K's size), a pixel's ray is cast only when its reach
-  // is > 0, and only that far: a hit beyond it reads as a miss.
-  ImageF distance_image(const Intrinsics& K, const Eigen::Isometry3d& world_from_camera, int threads = 0,
-                        const ImageF* reach = nullptr) const;
-  // Computes and keeps the pixel rays of `K` (distance_image does on first
-  // use): callers that cast from several threads prepare them once, in parallel.
-  void prepare_rays(const Intrinsics& K, int threads = 0) const;
+  // 0 where the ray misses. Pixels are sampled at their centres.
+  ImageF distance_image(const Intrinsics& K, const Eigen::Isometry3d& world_from_camera, int threads = 0) const;
   // Distance from `origin` along unit `dir` to the first hit, or 0.
   float distance(const Eigen::Vector3f& origin, const Eigen::Vector3f& dir) const;
   size_t triangles() const;
@@ -37,6 +34,42 @@ class MeshRaycaster {
   struct Impl;
   explicit MeshRaycaster(std::unique_ptr<Impl> impl);
   std::shared_ptr<const std::vector<Eigen::Vector3f>> rays_of(const Intrinsics& K, int threads) const;
+  std::unique_ptr<Impl> impl_;
+};
+
+// Rasterizes a mesh into cameras' distance images. Every pixel keeps the
+// nearest triangle whose cone from the camera centre holds the pixel's ray (the
+// lens model's, through the pixel centre) and the distance along that ray to
+// the triangle's plane: the same test as a ray cast, so the image equals
+// MeshRaycaster's up to float rounding. A triangle's pixels are found from its
+// vertices' projections through the lens (a pixel of margin; triangles over 32
+// pixels wide under distortion split for the bound only). Shared edges are
+// tested with the same vector from both sides, so the surface has no cracks.
+// Triangles outside the view are culled before any pixel is touched. Back
+// faces are drawn: the fused surface's winding is not consistent enough to
+// leave them out.
+class MeshRasterizer {
+ public:
+  explicit MeshRasterizer(const Mesh& mesh);
+  ~MeshRasterizer();
+
+  struct Stats {
+    size_t triangles_drawn = 0;     // at least one pixel tested
+    size_t triangles_culled = 0;    // behind the camera or outside the view
+    size_t pixels_tested = 0;
+  };
+  // Distance along each pixel's ray to the nearest triangle, 0 where none.
+  // Safe to call from several threads at once.
+  ImageF distance_image(const Intrinsics& K, const Eigen::Isometry3d& world_from_camera, Stats* stats = nullptr) const;
+  // Computes and keeps the pixel rays of `K` (distance_image does on first
+  // use, in its own thread): callers that draw from several threads prepare
+  // them once, in parallel.
+  void prepare(const Intrinsics& K, int threads = 0) const;
+  size_t triangles() const;
+
+ private:
+  struct Impl;
+  std::shared_ptr<const void> rays_of(const Intrinsics& K, int threads) const;
   std::unique_ptr<Impl> impl_;
 };
 

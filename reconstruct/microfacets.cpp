@@ -123,79 +123,59 @@ FacetStats build_facets(const std::vector<EvidenceVoxel>& ev, const std::vector<
     xf.push_back({inv.linear().cast<float>(), inv.translation().cast<float>()});
   }
   auto tolerance = [](const Draft& d) { return 0.5f * std::sqrt(3.f) * d.size; };
-  // The cameras' depth: given, or asked for at just the pixels the test below
-  // reads (the same pixel for the same facet and camera).
-  auto pixel_of = [&](size_t c, const Eigen::Vector3f& centre, Eigen::Vector3f* pc_out) -> int {
-    const Eigen::Vector3f pc = xf[c].R * centre + xf[c].t;
-    if (pc_out) *pc_out = pc;
-    const Intrinsics& K = cameras[c].intrinsics;
-    auto px = K.project(pc.cast<double>());
-    if (!px || !K.contains(*px)) return -1;
-    const int x = std::clamp(int(std::lround(px->x())), 0, K.width - 1);
-    const int y = std::clamp(int(std::lround(px->y())), 0, K.height - 1);
-    return y * K.width + x;
-  };
-  std::vector<ImageF> asked(cameras.size());
-  std::vector<const ImageF*> depth(cameras.size());
-  std::vector<size_t> asked_pixels(cameras.size(), 0);
+  // Camera by camera (in parallel): its depth, given or made for this test
+  // and dropped after it, then every facet against it.
+  std::vector<std::vector<uint32_t>> seen_by(cameras.size());
+  std::vector<size_t> occluded(cameras.size(), 0), outside(cameras.size(), 0);
   parallel_for(int(cameras.size()), worker_count(o.threads), [&](int ci) {
     const size_t c = size_t(ci);
-    depth[c] = cameras[c].distance;
-    if (depth[c] || !cameras[c].distance_at) return;
-    // A facet is hidden by a hit nearer than its distance less its tolerance:
-    // a pixel's ray need go no further than the largest of those.
-    const Intrinsics& K = cameras[c].intrinsics;
-    ImageF reach(K.width, K.height, 1, 0.f);
-    for (const Draft& d : drafts) {
-      Eigen::Vector3f pc;
-      const int p = pixel_of(c, d.centre, &pc);
-      if (p < 0) continue;
-      const float hide = pc.norm() - tolerance(d);
-      if (!(hide > 0)) continue;  // the camera is within the facet: nothing can hide it
-      float& r = reach.data[size_t(p)];
-      asked_pixels[c] += r == 0;
-      r = std::max(r, hide);
-    }
-    asked[c] = cameras[c].distance_at(reach);
-    depth[c] = &asked[c];
-  });
-  for (size_t n : asked_pixels) st.depth_pixels_asked += n;
-  std::vector<std::vector<uint32_t>> seen(drafts.size());
-  std::vector<size_t> occluded(drafts.size(), 0), outside(drafts.size(), 0);
-  const int chunk = 4096;
-  const int chunks = int((drafts.size() + chunk - 1) / chunk);
-  parallel_for(chunks, worker_count(o.threads), [&](int ci) {
-    const size_t end = std::min(drafts.size(), size_t(ci + 1) * chunk);
-    for (size_t i = size_t(ci) * chunk; i < end; ++i) {
+    const FacetCamera& cam = cameras[c];
+    ImageF made;
+    const ImageF* D = cam.distance;
+    if (!D && cam.distance_at) made = cam.distance_at(), D = &made;
+    const Intrinsics& K = cam.intrinsics;
+    if (D && (D->width != K.width || D->height != K.height)) D = nullptr;  // no usable depth: nothing occludes
+    for (size_t i = 0; i < drafts.size(); ++i) {
       const Draft& d = drafts[i];
-      const float tol = tolerance(d);
-      for (size_t c = 0; c < cameras.size(); ++c) {
-        Eigen::Vector3f pc;
-        const int p = pixel_of(c, d.centre, &pc);
-        if (p < 0) {
-          ++outside[i];
+      const Eigen::Vector3f pc = xf[c].R * d.centre + xf[c].t;
+      auto px = K.project(pc.cast<double>());
+      if (!px || !K.contains(*px)) {
+        ++outside[c];
+        continue;
+      }
+      if (D) {
+        const int x = std::clamp(int(std::lround(px->x())), 0, K.width - 1);
+        const int y = std::clamp(int(std::lround(px->y())), 0, K.height - 1);
+        const float dd = D->data[size_t(y) * K.width + x];
+        if (dd > 0 && pc.norm() > dd + tolerance(d)) {
+          ++occluded[c];
           continue;
         }
-        const ImageF* D = depth[c];
-        if (D && D->width == cameras[c].intrinsics.width && D->height == cameras[c].intrinsics.height) {
-          const float dd = D->data[size_t(p)];
-          if (dd > 0 && pc.norm() > dd + tol) {
-            ++occluded[i];
-            continue;
-          }
-        }
-        seen[i].push_back(uint32_t(c));
       }
+      seen_by[c].push_back(uint32_t(i));
     }
   });
+  // Each facet's cameras in ascending order.
+  std::vector<uint32_t> count(drafts.size(), 0);
+  for (size_t c = 0; c < cameras.size(); ++c) {
+    st.occluded += occluded[c];
+    st.outside_image += outside[c];
+    for (uint32_t i : seen_by[c]) ++count[i];
+  }
+  std::vector<uint32_t> first(drafts.size(), 0);
+  size_t links = 0;
+  for (size_t i = 0; i < drafts.size(); ++i) first[i] = uint32_t(links), links += count[i];
+  facet_cameras.assign(links, 0);
+  {
+    std::vector<uint32_t> fill = first;
+    for (size_t c = 0; c < cameras.size(); ++c)
+      for (uint32_t i : seen_by[c]) facet_cameras[fill[i]++] = uint32_t(c);
+  }
   facets.clear();
-  facet_cameras.clear();
   facets.reserve(drafts.size());
   for (size_t i = 0; i < drafts.size(); ++i) {
     const Draft& d = drafts[i];
-    st.occluded += occluded[i];
-    st.outside_image += outside[i];
-    if (seen[i].empty()) {
+    if (count[i] == 0) {
       ++st.unseen;
       if (!o.keep_unseen) continue;
     }
@@ -203,9 +183,8 @@ FacetStats build_facets(const std::vector<EvidenceVoxel>& ev, const std::vector<
     for (int k = 0; k < 3; ++k) r.center[k] = d.centre[k], r.normal[k] = d.normal[k];
     r.size = d.size;
     r.reliability = std::clamp(d.reliability, 0.f, 1.f);
-    r.first_camera = uint32_t(facet_cameras.size());
-    r.camera_count = uint32_t(seen[i].size());
-    facet_cameras.insert(facet_cameras.end(), seen[i].begin(), seen[i].end());
+    r.first_camera = first[i];
+    r.camera_count = count[i];
     facets.push_back(r);
     st.fuzzy += d.fuzzy;
     (d.size > float(o.voxel_m) * 1.5f ? st.coarse : st.fine) += 1;

@@ -47,11 +47,10 @@ struct FacetCamera {
   Intrinsics intrinsics;
   Eigen::Isometry3d world_from_camera = Eigen::Isometry3d::Identity();
   const ImageF* distance = nullptr;  // per-camera depth: distance along the ray, 0 = miss
-  // Without `distance`: the depth at just the pixels whose `reach` is > 0,
-  // hits beyond the reach (and elsewhere) 0. build_facets asks for the pixels
-  // its test reads, each as far as a hit could still hide a facet there, so a
-  // model without textures casts those rays only, and not through the facets.
-  std::function<ImageF(const ImageF& reach)> distance_at;
+  // Without `distance`: makes the camera's depth when build_facets comes to
+  // this camera, which drops it once the facets are tested (a model without
+  // textures never holds every camera's depth at once).
+  std::function<ImageF()> distance_at;
 };
 
 struct FacetOptions {
@@ -71,7 +70,6 @@ struct FacetStats {
   size_t camera_links = 0;
   size_t occluded = 0;           // (facet, camera) pairs inside the image but hidden
   size_t outside_image = 0;      // (facet, camera) pairs out of the image
-  size_t depth_pixels_asked = 0;  // pixels asked of `distance_at`, over the cameras
 };
 
 // Facet records and their camera lists. A camera sees a facet when its

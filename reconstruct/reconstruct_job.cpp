@@ -1,6 +1,8 @@
 #include "reconstruct/reconstruct_job.h"
 
 #include <algorithm>
+#include <atomic>
+#include <mutex>
 #include <cmath>
 #include <numbers>
 #include <optional>
@@ -378,32 +380,42 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   rep.counts["surface_triangles"] = double(surface.faces.size());
   timer.lap("evidence");
 
-  // Per-camera depth and textures.
-  auto caster = MeshRaycaster::create(surface);
-  if (!caster) return std::unexpected(caster.error());
+  // Per-camera depth and textures: the fused surface rasterized into every
+  // camera (the exact ray test per pixel; see camera_depth.h).
+  const MeshRasterizer raster(surface);
+  raster.prepare(views.front().K, job.threads);
+  std::atomic<size_t> drawn{0}, culled{0}, tested{0};
+  auto camera_depth = [&](const Intrinsics& K, const Eigen::Isometry3d& world_from_camera) {
+    MeshRasterizer::Stats rs;
+    ImageF d = raster.distance_image(K, world_from_camera, &rs);
+    drawn += rs.triangles_drawn, culled += rs.triangles_culled, tested += rs.pixels_tested;
+    return d;
+  };
   std::error_code ec;
   fs::create_directories(job.out / "cameras", ec);
   if (ec) return fail("cannot create '" + (job.out / "cameras").string() + "': " + ec.message());
   Model model;
   model.voxel_size_m = w0;
   std::vector<ImageF> distance(views.size());
-  {
-    // Every pixel's distance goes into the textures; without textures the
-    // facets' visibility test asks for the pixels it reads, and only those.
-    std::optional<Progress> progress;
-    if (job.textures) progress.emplace("camera depth", views.size());
-    for (size_t i = 0; i < views.size(); ++i) {
-      const View& v = views[i];
-      if (job.textures) distance[i] = (*caster)->distance_image(v.K, v.world_from_camera, job.threads);
-      ModelCamera mc;
-      mc.intrinsics = v.K;
-      mc.world_from_camera = v.world_from_camera;
-      mc.session_frame = v.frame;
-      if (job.textures) mc.texture = "cameras/" + frame_file_name(v.frame, "exr");
-      model.cameras.push_back(mc);
-      if (progress) progress->tick();
-    }
-    if (progress) progress->done();
+  for (const View& v : views) {
+    ModelCamera mc;
+    mc.intrinsics = v.K;
+    mc.world_from_camera = v.world_from_camera;
+    mc.session_frame = v.frame;
+    if (job.textures) mc.texture = "cameras/" + frame_file_name(v.frame, "exr");
+    model.cameras.push_back(mc);
+  }
+  if (job.textures) {
+    // Every camera's depth goes into its texture; without textures each one
+    // is made when the facets' visibility test comes to it.
+    Progress progress("camera depth", views.size());
+    std::mutex progress_mutex;
+    parallel_for(int(views.size()), worker_count(job.threads), [&](int i) {
+      distance[size_t(i)] = camera_depth(views[size_t(i)].K, views[size_t(i)].world_from_camera);
+      const std::lock_guard<std::mutex> lock(progress_mutex);
+      progress.tick();
+    });
+    progress.done();
   }
   timer.lap("camera_depth");
   if (job.textures) {
@@ -427,15 +439,10 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   timer.lap("textures");
 
   // Facets.
-  // Cast from one thread per camera: the pixel rays are prepared first, in parallel.
-  if (!job.textures) (*caster)->prepare_rays(views.front().K, job.threads);
   std::vector<FacetCamera> fc;
   for (size_t i = 0; i < views.size(); ++i) {
     FacetCamera c{views[i].K, views[i].world_from_camera, job.textures ? &distance[i] : nullptr, {}};
-    if (!job.textures)
-      c.distance_at = [&, i](const ImageF& reach) {
-        return (*caster)->distance_image(views[i].K, views[i].world_from_camera, 1, &reach);
-      };
+    if (!job.textures) c.distance_at = [&, i] { return camera_depth(views[i].K, views[i].world_from_camera); };
     fc.push_back(std::move(c));
   }
   FacetOptions fo;
@@ -449,14 +456,12 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   rep.counts["facets_fuzzy"] = double(st.fuzzy);
   rep.counts["facet_camera_links"] = double(st.camera_links);
   rep.counts["cameras"] = double(views.size());
+  rep.counts["camera_depth_triangles_drawn"] = double(drawn);
+  rep.counts["camera_depth_pixels_tested"] = double(tested);
   rep.skipped["facets_seen_by_no_camera"] = double(st.unseen);
   rep.skipped["facet_camera_pairs_occluded"] = double(st.occluded);
   rep.skipped["facet_camera_pairs_outside_image"] = double(st.outside_image);
-  if (!job.textures) {
-    double pixels = 0;
-    for (const auto& v : views) pixels += double(v.K.width) * v.K.height;
-    rep.skipped["camera_depth_pixels_not_cast"] = pixels - double(st.depth_pixels_asked);
-  }
+  rep.skipped["camera_depth_triangles_outside_view"] = double(culled);
   timer.lap("facets");
 
   Eigen::AlignedBox3d bounds;
