@@ -79,6 +79,13 @@ std::optional<Window> footprint(const Intrinsics& K, const Eigen::Vector3d& p_ca
                 int(std::floor(px->x() + r + 0.5)), int(std::floor(px->y() + r + 0.5))};
 }
 
+std::vector<SdfSample> to_samples(const std::vector<std::pair<Eigen::Vector3i, float>>& s) {
+  std::vector<SdfSample> out;
+  out.reserve(s.size());
+  for (const auto& [ijk, d] : s) out.push_back({ijk, d});
+  return out;
+}
+
 Coord coord_of(const Eigen::Vector3d& p, double voxel) {
   return Coord(int(std::lround(p.x() / voxel)), int(std::lround(p.y() / voxel)), int(std::lround(p.z() / voxel)));
 }
@@ -553,6 +560,45 @@ std::vector<std::pair<Eigen::Vector3i, float>> SparseVolume::samples() const {
       if (it.isVoxelValue())
         out.push_back({Eigen::Vector3i(it.getCoord().x(), it.getCoord().y(), it.getCoord().z()), *it});
   }
+  return out;
+}
+
+std::vector<SurfaceCrossing> SparseVolume::crossings(double max_jump_voxels) const {
+  const Impl& m = *impl_;
+  // Silhouettes only: samples() makes the distances from the hull.
+  if (m.tsdf->activeVoxelCount() == 0) return find_crossings(to_samples(samples()), m.voxel, max_jump_voxels);
+  // A sample is an observed voxel (views > 0) of a leaf with a finite
+  // distance, as samples() lists them; leaves in parallel, joined in leaf
+  // order (the order of samples()).
+  openvdb::tree::LeafManager<const TsdfGrid::TreeType> lm(m.tsdf->constTree());
+  std::vector<std::vector<SurfaceCrossing>> per_leaf(lm.leafCount());
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, lm.leafCount()), [&](const tbb::blocked_range<size_t>& range) {
+    auto acc = m.tsdf->getConstAccessor();
+    auto get = [&](const Eigen::Vector3i& p) -> std::optional<float> {
+      const Coord c(p.x(), p.y(), p.z());
+      const auto* leaf = acc.probeConstLeaf(c);
+      if (!leaf) return std::nullopt;
+      const auto off = leaf->coordToOffset(c);
+      if (!leaf->isValueOn(off)) return std::nullopt;
+      const openvdb::Vec3s& v = leaf->getValue(off);
+      if (!(v[1] > 0) || !std::isfinite(v[0])) return std::nullopt;
+      return v[0];
+    };
+    for (size_t li = range.begin(); li != range.end(); ++li)
+      for (auto it = lm.leaf(li).cbeginValueOn(); it; ++it) {
+        const openvdb::Vec3s v = *it;
+        if (!(v[1] > 0) || !std::isfinite(v[0])) continue;
+        const Coord c = it.getCoord();
+        const Eigen::Vector3i p(c.x(), c.y(), c.z());
+        for (int a = 0; a < 3; ++a)
+          if (auto x = crossing_at(p, a, v[0], m.voxel, max_jump_voxels, get)) per_leaf[li].push_back(*x);
+      }
+  });
+  size_t n = 0;
+  for (const auto& l : per_leaf) n += l.size();
+  std::vector<SurfaceCrossing> out;
+  out.reserve(n);
+  for (const auto& l : per_leaf) out.insert(out.end(), l.begin(), l.end());
   return out;
 }
 

@@ -28,6 +28,7 @@
 #include "core/camera_model.h"
 #include "core/image.h"
 #include "core/mesh.h"
+#include "reconstruct/octree.h"
 
 namespace s2r {
 
@@ -104,6 +105,9 @@ class SparseVolume {
   // Every observed voxel's fused signed distance (the octree's samples); with
   // silhouettes only, the distance to the hull's boundary.
   std::vector<std::pair<Eigen::Vector3i, float>> samples() const;
+  // find_crossings(samples(), voxel, max_jump_voxels), the same crossings in
+  // the same order, found leaf by leaf in parallel in the volume itself.
+  std::vector<SurfaceCrossing> crossings(double max_jump_voxels) const;
 
   // The fused surface as triangles (OpenVDB volume-to-mesh at sdf = 0, limited
   // to observed surface voxels) plus the fuzzy/hull voxels' closed hull.

@@ -69,7 +69,10 @@ float safe_acos(float x) { return std::acos(std::clamp(x, -1.f, 1.f)); }
 struct Leaf {
   Eigen::Vector3i cell;
   Eigen::Vector3d sum_p = Eigen::Vector3d::Zero();
-  std::vector<Eigen::Vector3f> normals;
+  Eigen::Vector3f sum_n = Eigen::Vector3f::Zero();  // its crossings' normals, added in crossing order
+  Eigen::Vector3f first_n = Eigen::Vector3f::Zero();
+  uint32_t count = 0;
+  float cone = 0;  // the widest angle from the leaf's normal to a crossing's
   uint16_t flags = 0;
 };
 
@@ -81,9 +84,7 @@ struct Tmp {
 
 }  // namespace
 
-SurfaceOctree SurfaceOctree::build(const std::vector<SdfSample>& samples, double voxel, double max_jump_voxels) {
-  SurfaceOctree t;
-  t.voxel_ = voxel;
+std::vector<SurfaceCrossing> find_crossings(const std::vector<SdfSample>& samples, double voxel, double max_jump_voxels) {
   BlockGrid<float> sdf(std::numeric_limits<float>::quiet_NaN());
   sdf.reserve(samples.size());
   for (const auto& s : samples)
@@ -92,52 +93,63 @@ SurfaceOctree SurfaceOctree::build(const std::vector<SdfSample>& samples, double
     const float v = sdf.get(p);
     return std::isnan(v) ? std::nullopt : std::optional<float>(v);
   };
-  auto gradient = [&](const Eigen::Vector3i& p, float sp) {
-    Eigen::Vector3f g = Eigen::Vector3f::Zero();
-    for (int a = 0; a < 3; ++a) {
-      const auto lo = get(p - Eigen::Vector3i::Unit(a)), hi = get(p + Eigen::Vector3i::Unit(a));
-      if (lo && hi) g[a] = (*hi - *lo) / 2;
-      else if (hi) g[a] = *hi - sp;
-      else if (lo) g[a] = sp - *lo;
-    }
-    return g;
-  };
+  std::vector<SurfaceCrossing> out;
+  for (const auto& s : samples) {
+    if (!std::isfinite(s.sdf)) continue;
+    for (int a = 0; a < 3; ++a)
+      if (auto c = crossing_at(s.ijk, a, s.sdf, voxel, max_jump_voxels, get)) out.push_back(*c);
+  }
+  return out;
+}
 
-  // Crossing edges and the leaf cells around them.
+SurfaceOctree SurfaceOctree::build(const std::vector<SdfSample>& samples, double voxel, double max_jump_voxels) {
+  return build_from_crossings(find_crossings(samples, voxel, max_jump_voxels), voxel);
+}
+
+SurfaceOctree SurfaceOctree::build_from_crossings(const std::vector<SurfaceCrossing>& crossings, double voxel) {
+  SurfaceOctree t;
+  t.voxel_ = voxel;
+  // The leaf cells around each crossing edge.
   BlockGrid<int> leaf_of(-1);
   std::vector<Leaf> leaves;
   std::vector<std::array<int, 4>> edge_leaf;  // leaves index, cyclic order around the edge
-  for (const auto& s : samples) {
-    const Eigen::Vector3i p = s.ijk;
-    const float sp = s.sdf;
-    if (!std::isfinite(sp)) continue;
-    for (int a = 0; a < 3; ++a) {
-      const auto sq = get(p + Eigen::Vector3i::Unit(a));
-      if (!sq || ((sp < 0) == (*sq < 0)) || std::abs(sp - *sq) > max_jump_voxels * voxel) continue;
-      const float tt = sp / (sp - *sq);
-      const Eigen::Vector3d point = (p.cast<double>() + double(tt) * Eigen::Vector3d::Unit(a)) * voxel;
-      Eigen::Vector3f n = (1 - tt) * gradient(p, sp) + tt * gradient(p + Eigen::Vector3i::Unit(a), *sq);
-      n = n.norm() > 1e-12f ? Eigen::Vector3f(n.normalized()) : Eigen::Vector3f(Eigen::Vector3f::Unit(a) * (sp < 0 ? 1.f : -1.f));
-      const int b = (a + 1) % 3, c = (a + 2) % 3;
-      std::array<int, 4> ids{};
-      const int order[4][2] = {{0, 0}, {1, 0}, {1, 1}, {0, 1}};  // counter-clockwise seen from +a
-      for (int k = 0; k < 4; ++k) {
-        const int db = order[k][0], dc = order[k][1];
-        const Eigen::Vector3i cell = p - db * Eigen::Vector3i::Unit(b) - dc * Eigen::Vector3i::Unit(c);
-        int& id = leaf_of.at(cell);
-        if (id < 0) id = int(leaves.size()), leaves.push_back({cell});
-        Leaf& l = leaves[size_t(id)];
-        l.sum_p += point;
-        l.normals.push_back(n);
-        l.flags |= uint16_t(1u << (a * 4 + db + 2 * dc));
-        ids[size_t(k)] = id;
-      }
-      t.edges_.push_back({p, uint8_t(a), sp < 0});
-      edge_leaf.push_back(ids);
+  edge_leaf.reserve(crossings.size());
+  t.edges_.reserve(crossings.size());
+  for (const SurfaceCrossing& x : crossings) {
+    const Eigen::Vector3i p = x.p;
+    const int a = x.axis;
+    const Eigen::Vector3d point = (p.cast<double>() + double(x.t) * Eigen::Vector3d::Unit(a)) * voxel;
+    const int b = (a + 1) % 3, c = (a + 2) % 3;
+    std::array<int, 4> ids{};
+    const int order[4][2] = {{0, 0}, {1, 0}, {1, 1}, {0, 1}};  // counter-clockwise seen from +a
+    for (int k = 0; k < 4; ++k) {
+      const int db = order[k][0], dc = order[k][1];
+      const Eigen::Vector3i cell = p - db * Eigen::Vector3i::Unit(b) - dc * Eigen::Vector3i::Unit(c);
+      int& id = leaf_of.at(cell);
+      if (id < 0) id = int(leaves.size()), leaves.push_back({cell});
+      Leaf& l = leaves[size_t(id)];
+      l.sum_p += point;
+      if (l.count++ == 0) l.first_n = x.normal;
+      l.sum_n += x.normal;
+      l.flags |= uint16_t(1u << (a * 4 + db + 2 * dc));
+      ids[size_t(k)] = id;
     }
+    t.edges_.push_back({p, uint8_t(a), x.inside_first});
+    edge_leaf.push_back(ids);
   }
   t.leaf_count_ = leaves.size();
   if (leaves.empty()) return t;
+
+  // Each leaf's cone: the widest angle from its normal to a crossing's.
+  auto leaf_normal = [](const Leaf& lf) {
+    return lf.sum_n.norm() > 1e-6f ? Eigen::Vector3f(lf.sum_n.normalized()) : lf.first_n;
+  };
+  {
+    std::vector<Eigen::Vector3f> normal(leaves.size());
+    for (size_t i = 0; i < leaves.size(); ++i) normal[i] = leaf_normal(leaves[i]);
+    for (size_t e = 0; e < crossings.size(); ++e)
+      for (int id : edge_leaf[e]) leaves[size_t(id)].cone = std::max(leaves[size_t(id)].cone, safe_acos(normal[size_t(id)].dot(crossings[e].normal)));
+  }
 
   // Levels, bottom-up.
   Eigen::Vector3i lo = leaves[0].cell, hi = leaves[0].cell;
@@ -191,23 +203,33 @@ SurfaceOctree SurfaceOctree::build(const std::vector<SdfSample>& samples, double
   for (const auto& ids : edge_leaf)
     for (int id : ids) t.edge_cells_.push_back(leaf_node[size_t(id)]);
 
+  // Every node's finest descendants as a range of `finest`: counts bottom-up,
+  // then each child's start after its elder siblings'.
+  std::vector<uint32_t> below_count(t.nodes_.size(), 0), below_start(t.nodes_.size(), 0);
+  for (size_t q = t.nodes_.size(); q-- > 0;) {
+    const OctreeNode& n = t.nodes_[q];
+    if (n.children == 0) below_count[q] = 1;
+    if (n.parent >= 0) below_count[size_t(n.parent)] += below_count[q];
+  }
+  std::vector<int> finest(t.nodes_.empty() ? 0 : below_count[0]);
+  for (size_t q = 0; q < t.nodes_.size(); ++q) {
+    const OctreeNode& n = t.nodes_[q];
+    if (n.children == 0) finest[below_start[q]] = int(q);
+    uint32_t s = below_start[q];
+    for (int c = n.first_child; c < n.first_child + n.children; ++c) below_start[size_t(c)] = s, s += below_count[size_t(c)];
+  }
   // Node statistics, children before parents (reverse breadth-first order).
-  std::vector<std::vector<int>> below(t.nodes_.size());  // finest descendants
   for (size_t q = t.nodes_.size(); q-- > 0;) {
     OctreeNode& n = t.nodes_[q];
     const auto [l, i] = order[q];
     if (n.children == 0) {
       const Leaf& lf = leaves[size_t(level[size_t(l)][size_t(i)].leaf)];
-      n.crossings = uint32_t(lf.normals.size());
-      n.vertex = (lf.sum_p / double(lf.normals.size())).cast<float>();
-      Eigen::Vector3f sum = Eigen::Vector3f::Zero();
-      for (const auto& m : lf.normals) sum += m;
-      n.normal = sum.norm() > 1e-6f ? Eigen::Vector3f(sum.normalized()) : lf.normals.front();
-      n.cone = 0;
-      for (const auto& m : lf.normals) n.cone = std::max(n.cone, safe_acos(n.normal.dot(m)));
+      n.crossings = lf.count;
+      n.vertex = (lf.sum_p / double(lf.count)).cast<float>();
+      n.normal = leaf_normal(lf);
+      n.cone = lf.cone;
       n.edge_flags = lf.flags;
       n.shape_error = 0;
-      below[q] = {int(q)};
       continue;
     }
     Eigen::Vector3d vsum = Eigen::Vector3d::Zero();
@@ -220,7 +242,6 @@ SurfaceOctree SurfaceOctree::build(const std::vector<SdfSample>& samples, double
       count += ch.crossings;
       nsum += ch.normal;
       child_error = std::max(child_error, ch.shape_error);
-      below[q].insert(below[q].end(), below[size_t(c)].begin(), below[size_t(c)].end());
     }
     n.crossings = count;
     n.vertex = (vsum / double(count)).cast<float>();
@@ -235,12 +256,12 @@ SurfaceOctree SurfaceOctree::build(const std::vector<SdfSample>& samples, double
     }
     n.cone = opposite ? float(std::numbers::pi) : std::min(n.cone, float(std::numbers::pi));
     float top = -std::numeric_limits<float>::infinity(), bottom = std::numeric_limits<float>::infinity();
-    for (int leaf : below[q]) {
+    for (uint32_t k = below_start[q]; k < below_start[q] + below_count[q]; ++k) {
+      const int leaf = finest[k];
       const float h = n.normal.dot(t.nodes_[size_t(leaf)].vertex - n.vertex);
       top = std::max(top, h), bottom = std::min(bottom, h);
     }
     n.shape_error = std::max(top - bottom, child_error);
-    for (int c = n.first_child; c < n.first_child + n.children; ++c) below[size_t(c)].clear(), below[size_t(c)].shrink_to_fit();
   }
   return t;
 }

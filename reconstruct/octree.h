@@ -19,6 +19,7 @@
 #pragma once
 
 #include <cstdint>
+#include <optional>
 #include <vector>
 
 #include <Eigen/Core>
@@ -48,11 +49,61 @@ struct OctreeNode {
   uint32_t crossings = 0;    // crossing points below the node
 };
 
+// Where the surface crosses the grid edge from sample p to p + e_axis.
+struct SurfaceCrossing {
+  Eigen::Vector3i p;
+  uint8_t axis = 0;
+  bool inside_first = false;  // sdf(p) < 0
+  float t = 0;                // the crossing at p + t e_axis, 0..1
+  Eigen::Vector3f normal = Eigen::Vector3f::UnitZ();  // unit: the samples' gradients interpolated
+};
+
+// The gradient of the distances at sample p (distance sp) from its six
+// neighbours through get(q) -> std::optional<float>: central where both
+// exist, one-sided where one does, 0 along an axis with neither.
+template <class Get>
+Eigen::Vector3f sdf_gradient(const Eigen::Vector3i& p, float sp, Get&& get) {
+  Eigen::Vector3f g = Eigen::Vector3f::Zero();
+  for (int a = 0; a < 3; ++a) {
+    const std::optional<float> lo = get(Eigen::Vector3i(p - Eigen::Vector3i::Unit(a))),
+                               hi = get(Eigen::Vector3i(p + Eigen::Vector3i::Unit(a)));
+    if (lo && hi) g[a] = (*hi - *lo) / 2;
+    else if (hi) g[a] = *hi - sp;
+    else if (lo) g[a] = sp - *lo;
+  }
+  return g;
+}
+
+// The crossing on the edge from sample p (distance sp) along `axis`, if the
+// sample there has the other sign and differs by at most max_jump_voxels
+// voxels (more is the truncation band's edge, not a surface).
+template <class Get>
+std::optional<SurfaceCrossing> crossing_at(const Eigen::Vector3i& p, int axis, float sp, double voxel,
+                                           double max_jump_voxels, Get&& get) {
+  const Eigen::Vector3i q = p + Eigen::Vector3i::Unit(axis);
+  const std::optional<float> sq = get(q);
+  if (!sq || ((sp < 0) == (*sq < 0)) || std::abs(sp - *sq) > max_jump_voxels * voxel) return std::nullopt;
+  SurfaceCrossing c;
+  c.p = p, c.axis = uint8_t(axis), c.inside_first = sp < 0;
+  c.t = sp / (sp - *sq);
+  const Eigen::Vector3f n = (1 - c.t) * sdf_gradient(p, sp, get) + c.t * sdf_gradient(q, *sq, get);
+  c.normal = n.norm() > 1e-12f ? Eigen::Vector3f(n.normalized())
+                               : Eigen::Vector3f(Eigen::Vector3f::Unit(axis) * (sp < 0 ? 1.f : -1.f));
+  return c;
+}
+
+// Every crossing between the samples, in sample order (then by axis). Non-
+// finite distances are no sample.
+std::vector<SurfaceCrossing> find_crossings(const std::vector<SdfSample>& samples, double voxel, double max_jump_voxels);
+
 class SurfaceOctree {
  public:
   // `max_jump_voxels`: samples whose distances differ by more than this many
   // voxels across an edge are not a crossing (a silhouette, not a surface).
   static SurfaceOctree build(const std::vector<SdfSample>& samples, double voxel, double max_jump_voxels = 2);
+  // The same from the crossings (SparseVolume::crossings finds them in the
+  // volume itself, in parallel).
+  static SurfaceOctree build_from_crossings(const std::vector<SurfaceCrossing>& crossings, double voxel);
 
   const std::vector<OctreeNode>& nodes() const { return nodes_; }
   int max_level() const { return max_level_; }
