@@ -1,4 +1,5 @@
 // s2r: turntable scan -> photoreal model, one binary (docs/cli.md).
+#include <malloc.h>
 #include <unistd.h>
 
 #include <cstdio>
@@ -71,6 +72,12 @@ void add_not_yet(CLI::App& app, const std::string& name, const std::string& what
 
 int main(int argc, char** argv) {
   using namespace s2r::cli;
+  // Images, volumes and the cameras' depth are large buffers allocated and
+  // freed many times in one command: kept in the heap rather than mapped
+  // afresh each time, their pages are not faulted in and zeroed again (on the
+  // rig's reconstruct, a tenth of the run was page faults).
+  mallopt(M_MMAP_THRESHOLD, 32 << 20);  // glibc's largest
+  mallopt(M_TRIM_THRESHOLD, 1 << 30);
   CLI::App app{
       "s2r - scan2render: turntable capture -> calibration -> reconstruction -> rendering.\n"
       "Every computing subcommand writes report.json (errors, counts, skipped work, seconds)."};
