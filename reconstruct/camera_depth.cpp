@@ -350,8 +350,14 @@ class Raster {
 
   // Tests the pixels whose centres lie within `pad` of [lo, hi].
   void pixels(const TriangleTest& t, const Eigen::Vector2f& lo, const Eigen::Vector2f& hi, float pad) {
-    const int xa = std::max(0, int(std::ceil(lo.x() - pad))), xb = std::min(K_.width - 1, int(std::floor(hi.x() + pad)));
-    const int ya = std::max(0, int(std::ceil(lo.y() - pad))), yb = std::min(K_.height - 1, int(std::floor(hi.y() + pad)));
+    // Clamped to the image before any conversion to int (no overflow, no NaN).
+    const float W = float(K_.width), H = float(K_.height);
+    if (!(lo.x() - pad <= W && lo.y() - pad <= H && hi.x() + pad >= -1.f && hi.y() + pad >= -1.f)) {
+      ++st_.triangles_culled;
+      return;
+    }
+    const int xa = int(std::ceil(std::max(lo.x() - pad, 0.f))), xb = int(std::floor(std::min(hi.x() + pad, W - 1)));
+    const int ya = int(std::ceil(std::max(lo.y() - pad, 0.f))), yb = int(std::floor(std::min(hi.y() + pad, H - 1)));
     if (xa > xb || ya > yb) {
       ++st_.triangles_culled;
       return;
