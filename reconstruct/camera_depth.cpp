@@ -403,12 +403,14 @@ struct MeshRasterizer::Impl {
   // walks every face once, and their vertices are then mostly in cache).
   std::vector<Eigen::Vector3f> vertices;
   std::vector<Eigen::Vector3i> faces;
+  Faces faces_seen = Faces::kBoth;
   std::mutex rays_mutex;
   std::vector<std::shared_ptr<const PixelRays>> rays;  // one per intrinsics seen
 };
 
-MeshRasterizer::MeshRasterizer(const Mesh& mesh) : impl_(std::make_unique<Impl>()) {
+MeshRasterizer::MeshRasterizer(const Mesh& mesh, Faces faces) : impl_(std::make_unique<Impl>()) {
   Impl& m = *impl_;
+  m.faces_seen = faces;
   const int nv = int(mesh.vertices.size());
   Eigen::AlignedBox3f box;
   for (const auto& v : mesh.vertices) box.extend(v);
@@ -481,6 +483,7 @@ ImageF MeshRasterizer::distance_image(const Intrinsics& K, const Eigen::Isometry
     v.px = raster.projectable(v.p) ? raster.pixel(v.p.x() / v.p.z(), v.p.y() / v.p.z()) : Eigen::Vector2f(nan, nan);
   }
   const bool distorted = K.has_distortion();
+  const bool inward = m.faces_seen == Faces::kInwardWound;
   const float W = float(K.width), H = float(K.height);
   for (const Eigen::Vector3i& f : m.faces) {
     const Vertex &va = vs[size_t(f[0])], &vb = vs[size_t(f[1])], &vc = vs[size_t(f[2])];
@@ -495,18 +498,25 @@ ImageF MeshRasterizer::distance_image(const Intrinsics& K, const Eigen::Isometry
     // vertices in ascending index order: the two triangles on an edge
     // compute it bitwise the same (up to sign), so they leave no crack.
     TriangleTest t;
-    for (int k = 0; k < 3; ++k) {
+    auto edge = [&](int k) {
       const int i = f[(k + 1) % 3], j = f[(k + 2) % 3];
       const Eigen::Vector3f &p = vs[size_t(std::min(i, j))].p, &q = vs[size_t(std::max(i, j))].p;
       t.e[k] = p.cross(q - p);
       if (i > j) t.e[k] = -t.e[k];
-    }
+    };
+    edge(0);
     const Eigen::Vector3f &a = va.p, &b = vb.p, &c = vc.p;
+    // det = a.(b x c) = n.a: > 0 where the face's normal points away from the camera.
     const float det = a.dot(t.e[0]);
     if (!(det != 0) || !std::isfinite(det)) {
       ++st.triangles_culled;  // edge-on: its plane holds the camera centre
       continue;
     }
+    if (inward && det < 0) {
+      ++st.back_faces;  // its outside faces away: behind the surface's front
+      continue;
+    }
+    edge(1), edge(2);
     if (det < 0)
       for (auto& e : t.e) e = -e;
     t.n = (b - a).cross(c - a);

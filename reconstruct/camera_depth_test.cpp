@@ -173,3 +173,33 @@ TEST(MeshRasterizer, NothingToDrawIsAllMisses) {
   const ImageF b = r.distance_image(camera(false), Eigen::Isometry3d::Identity());
   for (float v : b.data) ASSERT_EQ(v, 0.f);
 }
+
+TEST(MeshRasterizer, BackFacesLeftOutChangeNothingOnAClosedSurface) {
+  // The sphere wound with its normals inward (as OpenVDB winds the fused
+  // surface): from outside, leaving out the faces turned away gives the same
+  // image bit for bit, for about half the triangles.
+  Mesh m = sphere({0.02f, -0.01f, 0}, 0.3f, 40, 80);
+  for (auto& f : m.faces) {
+    const Eigen::Vector3f &a = m.vertices[size_t(f[0])], &b = m.vertices[size_t(f[1])], &c = m.vertices[size_t(f[2])];
+    if ((b - a).cross(c - a).dot(a - Eigen::Vector3f(0.02f, -0.01f, 0)) > 0) std::swap(f[1], f[2]);
+  }
+  const MeshRasterizer both(m), front(m, MeshRasterizer::Faces::kInwardWound);
+  for (bool distorted : {false, true}) {
+    const Intrinsics K = camera(distorted);
+    const Eigen::Isometry3d pose = looking_at({0.3, 0.2, -1.1}, {0, 0, 0});
+    MeshRasterizer::Stats sa, sb;
+    const ImageF a = both.distance_image(K, pose, &sa), b = front.distance_image(K, pose, &sb);
+    size_t hits = 0;
+    for (size_t p = 0; p < a.data.size(); ++p) {
+      ASSERT_EQ(a.data[p], b.data[p]) << "pixel " << p;
+      hits += a.data[p] > 0;
+    }
+    EXPECT_GT(hits, a.data.size() / 5);
+    EXPECT_EQ(sa.back_faces, 0u);
+    EXPECT_GT(sb.back_faces, m.faces.size() * 4 / 10);
+    EXPECT_LT(sb.triangles_drawn, sa.triangles_drawn * 6 / 10);
+  }
+  // Seen from inside every face is turned away: nothing is drawn.
+  const ImageF inside = front.distance_image(camera(false), Eigen::Isometry3d::Identity());
+  for (float v : inside.data) ASSERT_EQ(v, 0.f);
+}

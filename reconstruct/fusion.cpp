@@ -5,6 +5,7 @@
 #include <array>
 #include <atomic>
 #include <cmath>
+#include <functional>
 #include <limits>
 #include <mutex>
 
@@ -175,117 +176,168 @@ double SparseVolume::voxel() const { return impl_->voxel; }
 double SparseVolume::truncation() const { return impl_->tau; }
 const FusionStats& SparseVolume::fusion_stats() const { return impl_->stats; }
 
-void SparseVolume::integrate(const DepthObservation& v, int threads) {
+void SparseVolume::integrate(const DepthObservation& v, int threads) { integrate(std::vector<DepthObservation>{v}, threads); }
+
+void SparseVolume::integrate(const std::vector<DepthObservation>& views, int threads, const std::function<void()>& on_view) {
   Impl& m = *impl_;
-  ++m.stats.views;
-  if (!v.depth || v.depth->empty()) {
-    ++m.stats.views_without_depth;
+  const int band = int(std::ceil(m.tau / m.voxel));
+  constexpr int kLeaf = openvdb::MaskTree::LeafNodeType::DIM;  // 8
+  // 1. Per view, the leaf nodes (8^3 voxels) within the truncation band of a
+  //    measured point, every voxel in them active (as block-based TSDFs do:
+  //    cheaper than dilating voxel by voxel). Every other pixel is enough to
+  //    find them. Views in parallel.
+  struct Touched {
+    std::vector<Coord> leaves;
+    size_t used = 0, outside = 0;
+  };
+  std::vector<Touched> touched(views.size());
+  in_arena(threads, [&] {
+    tbb::parallel_for(size_t(0), views.size(), [&](size_t vi) {
+      const DepthObservation& v = views[vi];
+      if (!v.depth || v.depth->empty()) return;
+      const ImageU16& depth = *v.depth;
+      Touched& t = touched[vi];
+      openvdb::MaskTree mask(false);
+      openvdb::tree::ValueAccessor<openvdb::MaskTree> acc(mask);
+      // Recently touched leaf boxes (direct-mapped by the box's corner):
+      // neighbouring pixels, in this row and the one above, mostly share one.
+      std::array<std::pair<Coord, Coord>, 64> seen;
+      seen.fill({Coord(std::numeric_limits<int>::max()), Coord(std::numeric_limits<int>::max())});
+      for (int y = 0; y < depth.height; y += 2)
+        for (int x = 0; x < depth.width; x += 2) {
+          const uint16_t d = depth.data[size_t(y) * depth.width + x];
+          if (d == 0) continue;
+          auto pc = v.intrinsics.unproject({double(x), double(y)}, d * v.unit_m);
+          if (!pc) continue;
+          const Eigen::Vector3d pw = v.world_from_camera * *pc;
+          if (!m.in_crop(pw)) {
+            ++t.outside;
+            continue;
+          }
+          ++t.used;
+          const Coord c = coord_of(pw, m.voxel);
+          Coord lo, hi;
+          for (int a = 0; a < 3; ++a) lo[a] = (c[a] - band) & ~(kLeaf - 1), hi[a] = (c[a] + band) & ~(kLeaf - 1);
+          auto& slot = seen[size_t((lo.x() / kLeaf) * 73856093 ^ (lo.y() / kLeaf) * 19349663 ^ (lo.z() / kLeaf) * 83492791) & 63];
+          if (slot.first == lo && slot.second == hi) continue;
+          slot = {lo, hi};
+          for (int lx = lo.x(); lx <= hi.x(); lx += kLeaf)
+            for (int ly = lo.y(); ly <= hi.y(); ly += kLeaf)
+              for (int lz = lo.z(); lz <= hi.z(); lz += kLeaf) acc.touchLeaf(Coord(lx, ly, lz));
+        }
+      for (auto leaf = mask.cbeginLeaf(); leaf; ++leaf) t.leaves.push_back(leaf->origin());
+    });
+  });
+
+  // 2. Each touched leaf with the views that touched it, in view order; the
+  //    leaves joined into the volume's topology.
+  std::vector<std::pair<Coord, uint32_t>> pairs;
+  for (size_t vi = 0; vi < views.size(); ++vi) {
+    ++m.stats.views;
+    const Touched& t = touched[vi];
+    m.stats.samples_outside_crop += t.outside;
+    m.stats.depth_samples += t.used;
+    if (t.used == 0) ++m.stats.views_without_depth;
+    for (const Coord& c : t.leaves) pairs.emplace_back(c, uint32_t(vi));
+  }
+  if (pairs.empty()) {
+    if (on_view)
+      for (size_t vi = 0; vi < views.size(); ++vi) on_view();
     return;
   }
-  const ImageU16& depth = *v.depth;
-  // 1. The leaf nodes (8^3 voxels) within the truncation band of a measured
-  //    point, every voxel in them active (as block-based TSDFs do: cheaper
-  //    than dilating voxel by voxel). Every other pixel is enough to find them.
-  auto touched = openvdb::MaskGrid::create(false);
+  std::stable_sort(pairs.begin(), pairs.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+  std::vector<size_t> groups;  // start of each leaf's run in `pairs`
+  for (size_t i = 0; i < pairs.size(); ++i)
+    if (i == 0 || pairs[i].first != pairs[i - 1].first) groups.push_back(i);
+  groups.push_back(pairs.size());
   {
-    const int band = int(std::ceil(m.tau / m.voxel));
-    constexpr int kLeaf = openvdb::MaskTree::LeafNodeType::DIM;  // 8
-    openvdb::tree::ValueAccessor<openvdb::MaskTree> acc(touched->tree());
-    Coord last_lo(std::numeric_limits<int>::max()), last_hi = last_lo;
-    size_t used = 0;
-    for (int y = 0; y < depth.height; y += 2)
-      for (int x = 0; x < depth.width; x += 2) {
-        const uint16_t d = depth.data[size_t(y) * depth.width + x];
-        if (d == 0) continue;
-        auto pc = v.intrinsics.unproject({double(x), double(y)}, d * v.unit_m);
-        if (!pc) continue;
-        const Eigen::Vector3d pw = v.world_from_camera * *pc;
-        if (!m.in_crop(pw)) {
-          ++m.stats.samples_outside_crop;
-          continue;
-        }
-        ++used;
-        const Coord c = coord_of(pw, m.voxel);
-        Coord lo, hi;
-        for (int a = 0; a < 3; ++a) lo[a] = (c[a] - band) & ~(kLeaf - 1), hi[a] = (c[a] + band) & ~(kLeaf - 1);
-        if (lo == last_lo && hi == last_hi) continue;  // neighbouring pixels: the same leaves
-        last_lo = lo, last_hi = hi;
-        for (int lx = lo.x(); lx <= hi.x(); lx += kLeaf)
-          for (int ly = lo.y(); ly <= hi.y(); ly += kLeaf)
-            for (int lz = lo.z(); lz <= hi.z(); lz += kLeaf) acc.touchLeaf(Coord(lx, ly, lz));
-      }
-    m.stats.depth_samples += used;
-    if (used == 0) {
-      ++m.stats.views_without_depth;
-      return;
-    }
-    for (auto leaf = touched->tree().beginLeaf(); leaf; ++leaf) leaf->setValuesOn();
+    openvdb::tree::ValueAccessor<TsdfTree> acc(m.tsdf->tree());
+    for (size_t g = 0; g + 1 < groups.size(); ++g) acc.touchLeaf(pairs[groups[g]].first)->setValuesOn();
   }
-  m.tsdf->tree().topologyUnion(touched->tree());
 
-  // 2. Projective update of every touched voxel, leaf nodes in parallel (each
-  //    leaf's voxels are written by one task only). In a leaf, the voxels'
-  //    camera coordinates step by one voxel along each grid axis.
-  const Eigen::Isometry3d cam_from_world = v.world_from_camera.inverse();
-  const Intrinsics& K = v.intrinsics;
-  const bool pinhole = !K.has_distortion();
-  const Eigen::Matrix3f step = (cam_from_world.linear() * m.voxel).cast<float>();
-  const float fx = float(K.fx), fy = float(K.fy), cx = float(K.cx), cy = float(K.cy);
-  const float unit = float(v.unit_m), tau = float(m.tau), behind = float(m.behind);
-  openvdb::tree::LeafManager<openvdb::MaskTree> leaves(touched->tree());
+  // 3. Projective update of every touched voxel, leaf nodes in parallel (each
+  //    leaf's voxels are written by one task only), each leaf by all its views
+  //    in order while it sits in cache: per voxel the same updates in the same
+  //    order as one view after the other. In a leaf, the voxels' camera
+  //    coordinates step by one voxel along each grid axis.
+  struct ViewData {
+    Eigen::Isometry3d cam_from_world;
+    Eigen::Matrix3f step;
+    float fx, fy, cx, cy, unit;
+    bool pinhole;
+  };
+  std::vector<ViewData> vd(views.size());
+  for (size_t vi = 0; vi < views.size(); ++vi) {
+    const DepthObservation& v = views[vi];
+    const Intrinsics& K = v.intrinsics;
+    vd[vi].cam_from_world = v.world_from_camera.inverse();
+    vd[vi].step = (vd[vi].cam_from_world.linear() * m.voxel).cast<float>();
+    vd[vi].fx = float(K.fx), vd[vi].fy = float(K.fy), vd[vi].cx = float(K.cx), vd[vi].cy = float(K.cy);
+    vd[vi].unit = float(v.unit_m);
+    vd[vi].pinhole = !K.has_distortion();
+  }
+  const float tau = float(m.tau), behind = float(m.behind);
   std::atomic<size_t> updates{0};
   in_arena(threads, [&] {
-    tbb::parallel_for(leaves.leafRange(), [&](const auto& range) {
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, groups.size() - 1), [&](const auto& range) {
       size_t local = 0;
-      for (auto leaf = range.begin(); leaf; ++leaf) {
-        auto* dst = m.tsdf->tree().probeLeaf(leaf->origin());
+      openvdb::tree::ValueAccessor<const TsdfTree> acc(m.tsdf->tree());
+      for (size_t g = range.begin(); g != range.end(); ++g) {
+        const Coord o = pairs[groups[g]].first;
+        auto* dst = const_cast<TsdfTree::LeafNodeType*>(acc.probeConstLeaf(o));
         if (!dst) continue;
-        const Coord o = leaf->origin();
-        constexpr int D = openvdb::MaskTree::LeafNodeType::DIM;
+        constexpr int D = kLeaf;
         // The crop box, tested per voxel only where the leaf crosses it.
         const Eigen::Vector3d lo = m.centre(o), hi = m.centre(o.offsetBy(D - 1));
         const bool inside = !m.crop || (m.crop->contains(lo) && m.crop->contains(hi));
-        const Eigen::Vector3f base = (cam_from_world * lo).cast<float>();
         openvdb::Vec3s* val = dst->buffer().data();
-        for (int i = 0; i < D; ++i)
-          for (int j = 0; j < D; ++j) {
-            const Eigen::Vector3f row = base + step.col(0) * float(i) + step.col(1) * float(j);
-            for (int k = 0; k < D; ++k) {
-              const Eigen::Vector3f pc = row + step.col(2) * float(k);
-              if (!(pc.z() > 0)) continue;
-              if (!inside && !m.in_crop(m.centre(o.offsetBy(i, j, k)))) continue;
-              float px, py;
-              if (pinhole) {
-                px = fx * (pc.x() / pc.z()) + cx, py = fy * (pc.y() / pc.z()) + cy;
-              } else if (auto p = K.project(pc.cast<double>())) {
-                px = float(p->x()), py = float(p->y());
-              } else {
-                continue;
+        for (size_t p = groups[g]; p < groups[g + 1]; ++p) {
+          const DepthObservation& v = views[pairs[p].second];
+          const ViewData& c = vd[pairs[p].second];
+          const ImageU16& depth = *v.depth;
+          const Intrinsics& K = v.intrinsics;
+          const Eigen::Vector3f base = (c.cam_from_world * lo).cast<float>();
+          for (int i = 0; i < D; ++i)
+            for (int j = 0; j < D; ++j) {
+              const Eigen::Vector3f row = base + c.step.col(0) * float(i) + c.step.col(1) * float(j);
+              for (int k = 0; k < D; ++k) {
+                const Eigen::Vector3f pc = row + c.step.col(2) * float(k);
+                if (!(pc.z() > 0)) continue;
+                if (!inside && !m.in_crop(m.centre(o.offsetBy(i, j, k)))) continue;
+                float px, py;
+                if (c.pinhole) {
+                  px = c.fx * (pc.x() / pc.z()) + c.cx, py = c.fy * (pc.y() / pc.z()) + c.cy;
+                } else if (auto pp = K.project(pc.cast<double>())) {
+                  px = float(pp->x()), py = float(pp->y());
+                } else {
+                  continue;
+                }
+                // Nearest pixel; the comparison also refuses NaN.
+                if (!(px >= -0.5f && py >= -0.5f)) continue;
+                const int x = int(px + 0.5f), y = int(py + 0.5f);
+                if (x >= depth.width || y >= depth.height) continue;
+                const uint16_t d = depth.data[size_t(y) * depth.width + x];
+                if (d == 0) continue;
+                const float sdf = float(d) * c.unit - pc.z();
+                if (sdf < -tau) continue;  // far behind the surface: unknown
+                const float s = std::clamp(sdf, -behind, tau);
+                openvdb::Vec3s& vv = val[(i * D + j) * D + k];
+                const float n = vv[1] + 1.f;
+                const float delta = s - vv[0];
+                vv[0] += delta / n;
+                vv[2] += delta * (s - vv[0]);
+                vv[1] = n;
+                ++local;
               }
-              // Nearest pixel; the comparison also refuses NaN.
-              if (!(px >= -0.5f && py >= -0.5f)) continue;
-              const int x = int(px + 0.5f), y = int(py + 0.5f);
-              if (x >= depth.width || y >= depth.height) continue;
-              const uint16_t d = depth.data[size_t(y) * depth.width + x];
-              if (d == 0) continue;
-              const float sdf = float(d) * unit - pc.z();
-              if (sdf < -tau) continue;  // far behind the surface: unknown
-              const float s = std::clamp(sdf, -behind, tau);
-              // The same layout in both trees' leaves.
-              openvdb::Vec3s& vv = val[(i * D + j) * D + k];
-              const float n = vv[1] + 1.f;
-              const float delta = s - vv[0];
-              vv[0] += delta / n;
-              vv[2] += delta * (s - vv[0]);
-              vv[1] = n;
-              ++local;
             }
-          }
+        }
       }
       updates += local;
     });
   });
   m.stats.voxel_updates += updates.load();
+  if (on_view)
+    for (size_t vi = 0; vi < views.size(); ++vi) on_view();
 }
 
 HullStats SparseVolume::carve_hull(const std::vector<SilhouetteObservation>& views,

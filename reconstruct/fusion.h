@@ -18,6 +18,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <vector>
@@ -87,6 +88,11 @@ class SparseVolume {
 
   // Projective TSDF update from one depth image (parallel over leaf nodes).
   void integrate(const DepthObservation& view, int threads = 0);
+  // The same as integrating the views one after the other (the same numbers),
+  // in one pass: each leaf node is updated by every view that reaches it while
+  // it is in cache. `on_view` is called once per view (progress).
+  void integrate(const std::vector<DepthObservation>& views, int threads = 0,
+                 const std::function<void()>& on_view = {});
   const FusionStats& fusion_stats() const;
 
   // Visual hull inside `box`, refined to the voxel size; with `depth` views the

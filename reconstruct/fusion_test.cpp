@@ -144,6 +144,52 @@ TEST(Fusion, SphereFromARingOfExactDepth) {
   EXPECT_NEAR(d.at(80, 60), (kCentre - eye).norm() - kRadius, w / 4);
   EXPECT_EQ(d.at(0, 0), 0.f);  // misses
   EXPECT_GT(vol.memory_bytes(), 0u);
+  // The fused surface is wound with its normals inward: leaving out the faces
+  // turned away from the camera changes (almost) no pixel.
+  const Mesh surface = vol.surface_mesh(ev);
+  const MeshRasterizer both(surface), front(surface, MeshRasterizer::Faces::kInwardWound);
+  for (size_t i = 0; i < r.poses.size(); i += 4) {
+    MeshRasterizer::Stats st;
+    const ImageF a = both.distance_image(camera(), r.poses[i]), b = front.distance_image(camera(), r.poses[i], &st);
+    size_t hits = 0, same = 0;
+    for (size_t p = 0; p < a.data.size(); ++p)
+      if (a.data[p] > 0) ++hits, same += a.data[p] == b.data[p];
+    EXPECT_GT(hits, 1000u);
+    EXPECT_GE(double(same) / double(hits), 0.999) << "camera " << i;
+    EXPECT_GT(st.back_faces, surface.faces.size() / 3) << "camera " << i;
+  }
+}
+
+TEST(Fusion, ViewsTogetherEqualViewsOneByOne) {
+  // One pass over all views gives the same numbers as integrating them one
+  // after the other, a view without depth included.
+  const Ring r = ring(8);
+  const double w = 0.003;
+  const ImageU16 zeros(camera().width, camera().height, 1, 0);
+  SparseVolume one(w, 4 * w), all(w, 4 * w);
+  std::vector<DepthObservation> views;
+  for (size_t i = 0; i < r.depth.size(); ++i) {
+    views.push_back(obs(r, i));
+    if (i == 3) views.push_back({&zeros, 1e-4, camera(), r.poses[0]});
+  }
+  for (const auto& v : views) one.integrate(v);
+  int ticks = 0;
+  all.integrate(views, 2, [&] { ++ticks; });
+  EXPECT_EQ(ticks, int(views.size()));
+  EXPECT_EQ(one.fusion_stats().views, all.fusion_stats().views);
+  EXPECT_EQ(all.fusion_stats().views_without_depth, 1u);
+  EXPECT_EQ(one.fusion_stats().voxel_updates, all.fusion_stats().voxel_updates);
+  EXPECT_EQ(one.fusion_stats().depth_samples, all.fusion_stats().depth_samples);
+  EXPECT_EQ(one.active_voxels(), all.active_voxels());
+  const auto a = one.samples(), b = all.samples();
+  ASSERT_EQ(a.size(), b.size());
+  for (size_t i = 0; i < a.size(); ++i) {
+    ASSERT_EQ(a[i].first, b[i].first);
+    ASSERT_EQ(a[i].second, b[i].second);  // bit for bit
+  }
+  const auto ea = one.evidence(w / 2), eb = all.evidence(w / 2);
+  ASSERT_EQ(ea.size(), eb.size());
+  for (size_t i = 0; i < ea.size(); ++i) ASSERT_EQ(ea[i].spread_m, eb[i].spread_m);
 }
 
 TEST(Fusion, ViewWithoutValidDepthChangesNothing) {

@@ -220,14 +220,20 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   // Where the object is, and how far apart the cameras are.
   std::vector<Eigen::Isometry3d> cams;
   for (const auto& v : views) cams.push_back(v.world_from_camera);
-  std::vector<Eigen::Vector3f> sample;  // depth points in the world, every 4th pixel
-  for (const auto& v : views) {
-    if (v.depth.empty()) continue;
-    const Eigen::Isometry3d world_from_depth = v.world_from_camera * color_from_depth;
-    for (int y = 0; y < v.depth.height; y += 4)
-      for (int x = 0; x < v.depth.width; x += 4)
-        if (const uint16_t d = v.depth.data[size_t(y) * v.depth.width + x])
-          if (auto p = depth_K->unproject({double(x), double(y)}, d * unit)) sample.push_back((world_from_depth * *p).cast<float>());
+  std::vector<Eigen::Vector3f> sample;  // depth points in the world, every 4th pixel, in view order
+  {
+    std::vector<std::vector<Eigen::Vector3f>> per_view(views.size());
+    parallel_for(int(views.size()), job.threads, [&](int i) {
+      const View& v = views[size_t(i)];
+      if (v.depth.empty()) return;
+      const Eigen::Isometry3d world_from_depth = v.world_from_camera * color_from_depth;
+      for (int y = 0; y < v.depth.height; y += 4)
+        for (int x = 0; x < v.depth.width; x += 4)
+          if (const uint16_t d = v.depth.data[size_t(y) * v.depth.width + x])
+            if (auto p = depth_K->unproject({double(x), double(y)}, d * unit))
+              per_view[size_t(i)].push_back((world_from_depth * *p).cast<float>());
+    });
+    for (const auto& pv : per_view) sample.insert(sample.end(), pv.begin(), pv.end());
   }
   Eigen::Vector3d centre;
   double view_distance;
@@ -271,12 +277,14 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   // on the bunny before this).
   double near_distance = view_distance;
   if (s.layout == Layout::kObjectCentre && !sample.empty()) {
-    std::vector<double> nearest;
-    for (const auto& c : cams) {
+    std::vector<double> nearest(cams.size());
+    parallel_for(int(cams.size()), job.threads, [&](int k) {
+      // Squared distances in the loop, one square root at the end: the same minimum.
+      const Eigen::Vector3d c = cams[size_t(k)].translation();
       double best = std::numeric_limits<double>::infinity();
-      for (size_t i = 0; i < sample.size(); i += 3) best = std::min(best, (sample[i].cast<double>() - c.translation()).norm());
-      nearest.push_back(best);
-    }
+      for (size_t i = 0; i < sample.size(); i += 3) best = std::min(best, (sample[i].cast<double>() - c).squaredNorm());
+      nearest[size_t(k)] = std::sqrt(best);
+    });
     std::nth_element(nearest.begin(), nearest.begin() + nearest.size() / 2, nearest.end());
     near_distance = std::min(view_distance, nearest[nearest.size() / 2]);
   }
@@ -343,11 +351,9 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
         progress.tick();
         continue;
       }
-      DepthObservation o{&v.depth, unit, *depth_K, v.world_from_camera * color_from_depth};
-      volume.integrate(o, job.threads);
-      depth_obs.push_back(o);
-      progress.tick();
+      depth_obs.push_back({&v.depth, unit, *depth_K, v.world_from_camera * color_from_depth});
     }
+    volume.integrate(depth_obs, job.threads, [&] { progress.tick(); });
     progress.done();
     const auto& fs_ = volume.fusion_stats();
     rep.counts["depth_samples"] = double(fs_.depth_samples);
@@ -382,13 +388,15 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
 
   // Per-camera depth and textures: the fused surface rasterized into every
   // camera (the exact ray test per pixel; see camera_depth.h).
-  const MeshRasterizer raster(surface);
+  // The fused surface is wound as OpenVDB meshes it (normals inward): faces
+  // turned away from a camera are left out.
+  const MeshRasterizer raster(surface, MeshRasterizer::Faces::kInwardWound);
   raster.prepare(views.front().K, job.threads);
-  std::atomic<size_t> drawn{0}, culled{0}, tested{0};
+  std::atomic<size_t> drawn{0}, culled{0}, back{0}, tested{0};
   auto camera_depth = [&](const Intrinsics& K, const Eigen::Isometry3d& world_from_camera) {
     MeshRasterizer::Stats rs;
     ImageF d = raster.distance_image(K, world_from_camera, &rs);
-    drawn += rs.triangles_drawn, culled += rs.triangles_culled, tested += rs.pixels_tested;
+    drawn += rs.triangles_drawn, culled += rs.triangles_culled, back += rs.back_faces, tested += rs.pixels_tested;
     return d;
   };
   std::error_code ec;
@@ -462,6 +470,7 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   rep.skipped["facet_camera_pairs_occluded"] = double(st.occluded);
   rep.skipped["facet_camera_pairs_outside_image"] = double(st.outside_image);
   rep.skipped["camera_depth_triangles_outside_view"] = double(culled);
+  rep.skipped["camera_depth_back_faces"] = double(back);
   timer.lap("facets");
 
   Eigen::AlignedBox3d bounds;
