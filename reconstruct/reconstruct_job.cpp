@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <atomic>
+#include <future>
+#include <map>
 #include <mutex>
 #include <cmath>
 #include <numbers>
@@ -375,6 +377,44 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   }
   timer.lap("hull");
 
+  std::error_code ec;
+  fs::create_directories(job.out / "cameras", ec);
+  if (ec) return fail("cannot create '" + (job.out / "cameras").string() + "': " + ec.message());
+  // The surface octree and its finest crack-free patch mesh (the textured-mesh
+  // baseline), built from the volume alone in a task of its own alongside the
+  // evidence, the cameras' depth and the facets: its seconds overlap theirs.
+  struct OctreePart {
+    std::vector<OctreeRecord> records;
+    int max_level = 0;
+    std::map<std::string, double> counts;
+    bool patch_mesh = false;
+  };
+  std::future<Result<OctreePart>> octree_part = std::async(std::launch::async, [&]() -> Result<OctreePart> {
+    Stopwatch clock;
+    OctreePart part;
+    // A sign change between neighbouring samples is a surface crossing when
+    // their difference is at most what fusion can store across one: the
+    // clamp behind surfaces (1.5 w) plus a projective distance in front of up
+    // to 2 w (grazing rays overestimate). Larger jumps are the truncation
+    // band's edge. (With 2 w, the rig bunny's patch mesh had 7,560 boundary
+    // edges; with 3.5 w, 1,406.)
+    const SurfaceOctree tree = SurfaceOctree::build_from_crossings(volume.crossings(3.5), w0);
+    part.records = octree_records(tree);
+    part.max_level = tree.max_level();
+    part.counts["octree_nodes"] = double(tree.nodes().size());
+    part.counts["octree_leaves"] = double(tree.leaves());
+    part.counts["octree_levels"] = double(tree.max_level() + 1);
+    const Mesh patches = tree.patch_mesh();
+    part.counts["patch_triangles"] = double(patches.faces.size());
+    part.counts["patch_boundary_edges"] = double(boundary_edges(patches));
+    if (!patches.faces.empty()) {
+      if (auto st2 = write_ply_mesh(job.out / "patches.ply", patches); !st2) return std::unexpected(st2.error());
+      part.patch_mesh = true;
+    }
+    part.counts["seconds_octree"] = clock.seconds();
+    return part;
+  });
+
   // Evidence and the fused surface.
   const auto evidence = volume.evidence(w0 / 4);
   if (evidence.empty()) rep.warnings.push_back("no voxel holds surface evidence: the model has no facets");
@@ -382,8 +422,13 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   rep.counts["active_voxels"] = double(volume.active_voxels());
   rep.skipped["voxels_without_evidence"] = double(volume.active_voxels()) - double(evidence.size());
   rep.counts["volume_bytes"] = double(volume.memory_bytes());
-  Mesh surface = volume.surface_mesh(evidence);
+  const Mesh surface = volume.surface_mesh(evidence);
   rep.counts["surface_triangles"] = double(surface.faces.size());
+  // Written in a task of its own while the cameras' depth is made.
+  std::future<Status> surface_written = std::async(std::launch::async, [&]() -> Status {
+    if (surface.faces.empty()) return {};
+    return write_ply_mesh(job.out / "surface.ply", surface);
+  });
   timer.lap("evidence");
 
   // Per-camera depth and textures: the fused surface rasterized into every
@@ -399,9 +444,6 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
     drawn += rs.triangles_drawn, culled += rs.triangles_culled, back += rs.back_faces, tested += rs.pixels_tested;
     return d;
   };
-  std::error_code ec;
-  fs::create_directories(job.out / "cameras", ec);
-  if (ec) return fail("cannot create '" + (job.out / "cameras").string() + "': " + ec.message());
   Model model;
   model.voxel_size_m = w0;
   std::vector<ImageF> distance(views.size());
@@ -481,35 +523,17 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   }
   if (bounds.isEmpty()) bounds = Eigen::AlignedBox3d(centre, centre);
   model.bounds = bounds;
-  // The surface octree and its finest crack-free patch mesh (the textured-mesh baseline).
   {
-    // A sign change between neighbouring samples is a surface crossing when
-    // their difference is at most what fusion can store across one: the
-    // clamp behind surfaces (1.5 w) plus a projective distance in front of up
-    // to 2 w (grazing rays overestimate). Larger jumps are the truncation
-    // band's edge. (With 2 w, the rig bunny's patch mesh had 7,560 boundary
-    // edges; with 3.5 w, 1,406.)
-    const SurfaceOctree tree = SurfaceOctree::build_from_crossings(volume.crossings(3.5), w0);
-    model.octree = octree_records(tree);
-    model.octree_max_level = tree.max_level();
-    rep.counts["octree_nodes"] = double(tree.nodes().size());
-    rep.counts["octree_leaves"] = double(tree.leaves());
-    rep.counts["octree_levels"] = double(tree.max_level() + 1);
-    Mesh patches = tree.patch_mesh();
-    rep.counts["patch_triangles"] = double(patches.faces.size());
-    rep.counts["patch_boundary_edges"] = double(boundary_edges(patches));
-    if (!patches.faces.empty()) {
-      patches.compute_vertex_normals();
-      if (auto st2 = write_ply_mesh(job.out / "patches.ply", patches); !st2) return std::unexpected(st2.error());
-      model.patch_mesh = "patches.ply";
-    }
+    Result<OctreePart> part = octree_part.get();
+    if (!part) return std::unexpected(part.error());
+    model.octree = std::move(part->records);
+    model.octree_max_level = part->max_level;
+    for (const auto& [k, v] : part->counts) rep.counts[k] = v;
+    if (part->patch_mesh) model.patch_mesh = "patches.ply";
   }
-  timer.lap("octree");
-  if (!surface.faces.empty()) {
-    surface.compute_vertex_normals();
-    if (auto st2 = write_ply_mesh(job.out / "surface.ply", surface); !st2) return std::unexpected(st2.error());
-    model.surface_mesh = "surface.ply";
-  }
+  timer.lap("octree_wait");
+  if (auto st2 = surface_written.get(); !st2) return std::unexpected(st2.error());
+  if (!surface.faces.empty()) model.surface_mesh = "surface.ply";
   if (auto st2 = save_model(job.out, model); !st2) return std::unexpected(st2.error());
   timer.lap("write");
   rep.counts["model_bytes"] = double(model.facets.size() * sizeof(FacetRecord) + model.facet_cameras.size() * 4);
