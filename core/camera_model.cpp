@@ -19,9 +19,11 @@ Eigen::Vector2d Intrinsics::distort(const Eigen::Vector2d& xn) const {
           y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y};
 }
 
-std::optional<Eigen::Vector2d> Intrinsics::undistort(const Eigen::Vector2d& xd) const {
+std::optional<Eigen::Vector2d> Intrinsics::undistort(const Eigen::Vector2d& xd) const { return undistort(xd, xd); }
+
+std::optional<Eigen::Vector2d> Intrinsics::undistort(const Eigen::Vector2d& xd, const Eigen::Vector2d& start) const {
   if (!has_distortion()) return xd;
-  Eigen::Vector2d x = xd;
+  Eigen::Vector2d x = start.allFinite() ? start : xd;
   const double k1 = dist[0], k2 = dist[1], p1 = dist[2], p2 = dist[3], k3 = dist[4];
   for (int it = 0; it < 20; ++it) {
     const double u = x.x(), v = x.y();

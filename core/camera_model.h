@@ -30,6 +30,9 @@ struct Intrinsics {
   // Inverse of distort() by Newton iterations; nullopt where it does not
   // converge (far outside the calibrated field).
   std::optional<Eigen::Vector2d> undistort(const Eigen::Vector2d& xd) const;
+  // The same, Newton's iterations started from `start` (a neighbouring
+  // pixel's answer: fewer iterations to the same point).
+  std::optional<Eigen::Vector2d> undistort(const Eigen::Vector2d& xd, const Eigen::Vector2d& start) const;
 
   // Camera-frame point -> pixel. nullopt behind the camera (z <= 0).
   std::optional<Eigen::Vector2d> project(const Eigen::Vector3d& p_camera) const;

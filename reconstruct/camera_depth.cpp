@@ -202,14 +202,18 @@ std::shared_ptr<const PixelRays> make_pixel_rays(const Intrinsics& K, int thread
   std::vector<Bounds> rows(size_t(std::max(K.height, 0)));
   parallel_for(K.height, worker_count(threads), [&](int y) {
     Bounds& b = rows[size_t(y)];
+    // Each pixel's undistortion starts from its left neighbour's answer.
+    Eigen::Vector2d previous = Eigen::Vector2d::Constant(std::numeric_limits<double>::quiet_NaN());
     for (int x = 0; x < K.width; ++x) {
-      const auto ray = K.ray({double(x), double(y)});
-      if (!ray || !ray->allFinite()) continue;
-      pr->rays[size_t(y) * K.width + x] = ray->head<2>().cast<float>();
-      pr->length[size_t(y) * K.width + x] = float(ray->norm());
-      const float xn = float(ray->x()), yn = float(ray->y());
-      b.x0 = std::min(b.x0, xn), b.x1 = std::max(b.x1, xn), b.y0 = std::min(b.y0, yn), b.y1 = std::max(b.y1, yn);
-      b.r2max = std::max(b.r2max, xn * xn + yn * yn);
+      const Eigen::Vector2d xd((x - K.cx) / K.fx, (y - K.cy) / K.fy);
+      const auto xn = K.undistort(xd, previous);
+      previous = xn ? *xn : Eigen::Vector2d::Constant(std::numeric_limits<double>::quiet_NaN());
+      if (!xn || !xn->allFinite()) continue;
+      pr->rays[size_t(y) * K.width + x] = xn->cast<float>();
+      pr->length[size_t(y) * K.width + x] = float(std::sqrt(xn->squaredNorm() + 1.0));
+      const float xu = float(xn->x()), yu = float(xn->y());
+      b.x0 = std::min(b.x0, xu), b.x1 = std::max(b.x1, xu), b.y0 = std::min(b.y0, yu), b.y1 = std::max(b.y1, yu);
+      b.r2max = std::max(b.r2max, xu * xu + yu * yu);
     }
   });
   float x0 = std::numeric_limits<float>::infinity(), x1 = -x0, y0 = x0, y1 = -x0, r2max = 0;
