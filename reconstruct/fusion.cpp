@@ -297,37 +297,54 @@ void SparseVolume::integrate(const std::vector<DepthObservation>& views, int thr
           const ImageU16& depth = *v.depth;
           const Intrinsics& K = v.intrinsics;
           const Eigen::Vector3f base = (c.cam_from_world * lo).cast<float>();
+          // A voxel's update from its camera depth z and measured depth d.
+          auto update = [&](openvdb::Vec3s& vv, float z, uint16_t d) {
+            const float sdf = float(d) * c.unit - z;
+            if (sdf < -tau) return;  // far behind the surface: unknown
+            const float s = std::clamp(sdf, -behind, tau);
+            const float n = vv[1] + 1.f;
+            const float delta = s - vv[0];
+            vv[0] += delta / n;
+            vv[2] += delta * (s - vv[0]);
+            vv[1] = n;
+            ++local;
+          };
+          const float W = float(depth.width), H = float(depth.height);
           for (int i = 0; i < D; ++i)
             for (int j = 0; j < D; ++j) {
               const Eigen::Vector3f row = base + c.step.col(0) * float(i) + c.step.col(1) * float(j);
+              openvdb::Vec3s* line = val + (i * D + j) * D;
+              if (c.pinhole) {
+                // A row of the leaf projected at once (branch-free, so the
+                // compiler can vectorize it), then its pixels read.
+                std::array<float, D> zs;
+                std::array<int, D> at;
+                for (int k = 0; k < D; ++k) {
+                  const float x = row.x() + c.step(0, 2) * float(k), y = row.y() + c.step(1, 2) * float(k);
+                  const float z = row.z() + c.step(2, 2) * float(k);
+                  const float inv = 1.f / z;
+                  // Nearest pixel (+0.5 then truncated); the comparisons also refuse NaN.
+                  const float px = c.fx * (x * inv) + c.cx + 0.5f, py = c.fy * (y * inv) + c.cy + 0.5f;
+                  const bool ok = z > 0 && px >= 0 && py >= 0 && px < W && py < H;
+                  at[size_t(k)] = ok ? int(py) * depth.width + int(px) : -1;
+                  zs[size_t(k)] = z;
+                }
+                for (int k = 0; k < D; ++k) {
+                  if (at[size_t(k)] < 0) continue;
+                  if (!inside && !m.in_crop(m.centre(o.offsetBy(i, j, k)))) continue;
+                  if (const uint16_t d = depth.data[size_t(at[size_t(k)])]) update(line[k], zs[size_t(k)], d);
+                }
+                continue;
+              }
               for (int k = 0; k < D; ++k) {
                 const Eigen::Vector3f pc = row + c.step.col(2) * float(k);
                 if (!(pc.z() > 0)) continue;
                 if (!inside && !m.in_crop(m.centre(o.offsetBy(i, j, k)))) continue;
-                float px, py;
-                if (c.pinhole) {
-                  px = c.fx * (pc.x() / pc.z()) + c.cx, py = c.fy * (pc.y() / pc.z()) + c.cy;
-                } else if (auto pp = K.project(pc.cast<double>())) {
-                  px = float(pp->x()), py = float(pp->y());
-                } else {
-                  continue;
-                }
-                // Nearest pixel; the comparison also refuses NaN.
-                if (!(px >= -0.5f && py >= -0.5f)) continue;
-                const int x = int(px + 0.5f), y = int(py + 0.5f);
-                if (x >= depth.width || y >= depth.height) continue;
-                const uint16_t d = depth.data[size_t(y) * depth.width + x];
-                if (d == 0) continue;
-                const float sdf = float(d) * c.unit - pc.z();
-                if (sdf < -tau) continue;  // far behind the surface: unknown
-                const float s = std::clamp(sdf, -behind, tau);
-                openvdb::Vec3s& vv = val[(i * D + j) * D + k];
-                const float n = vv[1] + 1.f;
-                const float delta = s - vv[0];
-                vv[0] += delta / n;
-                vv[2] += delta * (s - vv[0]);
-                vv[1] = n;
-                ++local;
+                const auto pp = K.project(pc.cast<double>());
+                if (!pp) continue;
+                const float px = float(pp->x()) + 0.5f, py = float(pp->y()) + 0.5f;
+                if (!(px >= 0 && py >= 0 && px < W && py < H)) continue;
+                if (const uint16_t d = depth.data[size_t(int(py)) * depth.width + size_t(int(px))]) update(line[k], pc.z(), d);
               }
             }
         }
