@@ -317,8 +317,8 @@ void SparseVolume::integrate(const std::vector<DepthObservation>& views, int thr
               if (c.pinhole) {
                 // A row of the leaf projected at once (branch-free, so the
                 // compiler can vectorize it), then its pixels read.
-                std::array<float, D> zs;
-                std::array<int, D> at;
+                std::array<float, D> zs{};
+                std::array<int, D> at{};
                 for (int k = 0; k < D; ++k) {
                   const float x = row.x() + c.step(0, 2) * float(k), y = row.y() + c.step(1, 2) * float(k);
                   const float z = row.z() + c.step(2, 2) * float(k);
