@@ -199,10 +199,7 @@ void SparseVolume::integrate(const std::vector<DepthObservation>& views, int thr
       Touched& t = touched[vi];
       openvdb::MaskTree mask(false);
       openvdb::tree::ValueAccessor<openvdb::MaskTree> acc(mask);
-      // Recently touched leaf boxes (direct-mapped by the box's corner):
-      // neighbouring pixels, in this row and the one above, mostly share one.
-      std::array<std::pair<Coord, Coord>, 64> seen;
-      seen.fill({Coord(std::numeric_limits<int>::max()), Coord(std::numeric_limits<int>::max())});
+      Coord last_lo(std::numeric_limits<int>::max()), last_hi = last_lo;
       for (int y = 0; y < depth.height; y += 2)
         for (int x = 0; x < depth.width; x += 2) {
           const uint16_t d = depth.data[size_t(y) * depth.width + x];
@@ -218,9 +215,8 @@ void SparseVolume::integrate(const std::vector<DepthObservation>& views, int thr
           const Coord c = coord_of(pw, m.voxel);
           Coord lo, hi;
           for (int a = 0; a < 3; ++a) lo[a] = (c[a] - band) & ~(kLeaf - 1), hi[a] = (c[a] + band) & ~(kLeaf - 1);
-          auto& slot = seen[size_t((lo.x() / kLeaf) * 73856093 ^ (lo.y() / kLeaf) * 19349663 ^ (lo.z() / kLeaf) * 83492791) & 63];
-          if (slot.first == lo && slot.second == hi) continue;
-          slot = {lo, hi};
+          if (lo == last_lo && hi == last_hi) continue;  // neighbouring pixels: the same leaves
+          last_lo = lo, last_hi = hi;
           for (int lx = lo.x(); lx <= hi.x(); lx += kLeaf)
             for (int ly = lo.y(); ly <= hi.y(); ly += kLeaf)
               for (int lz = lo.z(); lz <= hi.z(); lz += kLeaf) acc.touchLeaf(Coord(lx, ly, lz));
