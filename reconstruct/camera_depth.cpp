@@ -2,10 +2,12 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <cmath>
 #include <limits>
 #include <mutex>
 #include <numbers>
+#include <thread>
 
 #include <embree3/rtcore.h>
 
@@ -177,16 +179,63 @@ namespace {
 // window bounds the rays' normalised coordinates (x/z, y/z), and within
 // radius `valid_r` (normalised) the radial distortion is monotonic, so a
 // vertex there projects to one place.
+//
+// Undistorting a pixel takes Newton's iterations: the rays are made tile by
+// tile when a triangle first needs them (most of a turntable camera's pixels
+// never see the object), once, by whichever thread comes first.
 struct PixelRays {
+  static constexpr int kTile = 16;  // pixels a side
   Intrinsics K;
-  std::vector<Eigen::Vector2f> rays;
-  std::vector<float> length;
+  mutable std::vector<Eigen::Vector2f> rays;
+  mutable std::vector<float> length;
   float x0 = 0, x1 = 0, y0 = 0, y1 = 0;  // normalised window of the image, a little enlarged
   float valid_r2 = std::numeric_limits<float>::infinity();
   // How far the lens bows a straight edge: a chord of L pixels strays at
   // most bow L^2 pixels from the projected edge (max |P''| / (8 m^2) over the
   // window, P the lens map, m its smallest scale). 0 for a pinhole.
   float bow = 0;
+  int tiles_x = 0, tiles_y = 0;
+  // Per tile: 0 not made, 1 being made, 2 made (release / acquire).
+  std::unique_ptr<std::atomic<uint8_t>[]> tile_state;
+  mutable std::atomic<size_t> tiles_made{0};
+
+  // The rays of pixels [xa, xb] x [ya, yb] (within the image) are ready on return.
+  void need(int xa, int xb, int ya, int yb) const {
+    for (int ty = ya / kTile; ty <= yb / kTile; ++ty)
+      for (int tx = xa / kTile; tx <= xb / kTile; ++tx) {
+        std::atomic<uint8_t>& state = tile_state[size_t(ty) * size_t(tiles_x) + size_t(tx)];
+        if (state.load(std::memory_order_acquire) == 2) continue;
+        uint8_t expected = 0;
+        if (state.compare_exchange_strong(expected, 1, std::memory_order_acq_rel)) {
+          make_tile(tx, ty);
+          tiles_made.fetch_add(1, std::memory_order_relaxed);
+          state.store(2, std::memory_order_release);
+        } else {
+          while (state.load(std::memory_order_acquire) != 2) std::this_thread::yield();
+        }
+      }
+  }
+
+  // Each pixel's undistortion starts from its left neighbours' answers
+  // extrapolated (two Newton steps then usually suffice).
+  void make_tile(int tx, int ty) const {
+    const int xa = tx * kTile, xb = std::min(K.width, xa + kTile);
+    const int ya = ty * kTile, yb = std::min(K.height, ya + kTile);
+    const Eigen::Vector2d none = Eigen::Vector2d::Constant(std::numeric_limits<double>::quiet_NaN());
+    for (int y = ya; y < yb; ++y) {
+      Eigen::Vector2d p1 = none, p2 = none;
+      for (int x = xa; x < xb; ++x) {
+        const Eigen::Vector2d xd((x - K.cx) / K.fx, (y - K.cy) / K.fy);
+        const Eigen::Vector2d start = p2.allFinite() ? Eigen::Vector2d(2 * p1 - p2) : p1;
+        const auto xn = K.undistort(xd, start);
+        p2 = p1;
+        p1 = xn && xn->allFinite() ? *xn : none;
+        if (!p1.allFinite()) continue;
+        rays[size_t(y) * K.width + x] = p1.cast<float>();
+        length[size_t(y) * K.width + x] = float(std::sqrt(p1.squaredNorm() + 1.0));
+      }
+    }
+  }
 };
 
 std::shared_ptr<const PixelRays> make_pixel_rays(const Intrinsics& K, int threads) {
@@ -195,31 +244,37 @@ std::shared_ptr<const PixelRays> make_pixel_rays(const Intrinsics& K, int thread
   const float nan = std::numeric_limits<float>::quiet_NaN();
   pr->rays.assign(size_t(K.width) * K.height, Eigen::Vector2f(nan, nan));
   pr->length.assign(size_t(K.width) * K.height, 0.f);
-  // Undistorting every pixel is the costly part: rows in parallel.
-  struct Bounds {
-    float x0 = std::numeric_limits<float>::infinity(), x1 = -x0, y0 = x0, y1 = -x0, r2max = 0;
-  };
-  std::vector<Bounds> rows(size_t(std::max(K.height, 0)));
-  parallel_for(K.height, worker_count(threads), [&](int y) {
-    Bounds& b = rows[size_t(y)];
-    // Each pixel's undistortion starts from its left neighbour's answer.
-    Eigen::Vector2d previous = Eigen::Vector2d::Constant(std::numeric_limits<double>::quiet_NaN());
-    for (int x = 0; x < K.width; ++x) {
-      const Eigen::Vector2d xd((x - K.cx) / K.fx, (y - K.cy) / K.fy);
-      const auto xn = K.undistort(xd, previous);
-      previous = xn ? *xn : Eigen::Vector2d::Constant(std::numeric_limits<double>::quiet_NaN());
-      if (!xn || !xn->allFinite()) continue;
-      pr->rays[size_t(y) * K.width + x] = xn->cast<float>();
-      pr->length[size_t(y) * K.width + x] = float(std::sqrt(xn->squaredNorm() + 1.0));
-      const float xu = float(xn->x()), yu = float(xn->y());
-      b.x0 = std::min(b.x0, xu), b.x1 = std::max(b.x1, xu), b.y0 = std::min(b.y0, yu), b.y1 = std::max(b.y1, yu);
-      b.r2max = std::max(b.r2max, xu * xu + yu * yu);
-    }
-  });
+  pr->tiles_x = (std::max(K.width, 0) + PixelRays::kTile - 1) / PixelRays::kTile;
+  pr->tiles_y = (std::max(K.height, 0) + PixelRays::kTile - 1) / PixelRays::kTile;
+  pr->tile_state = std::make_unique<std::atomic<uint8_t>[]>(size_t(pr->tiles_x) * size_t(pr->tiles_y));
+  // The window from the image's border: the lens map is one to one, so its
+  // image of the rectangle is bounded by its image of the border, where
+  // x, y and r^2 (convex) take their extremes. Where a border pixel cannot be
+  // undistorted every pixel is made now and the window taken over all.
+  std::vector<Eigen::Vector2i> border;
+  for (int x = 0; x < K.width; ++x) border.push_back({x, 0}), border.push_back({x, K.height - 1});
+  for (int y = 1; y + 1 < K.height; ++y) border.push_back({0, y}), border.push_back({K.width - 1, y});
   float x0 = std::numeric_limits<float>::infinity(), x1 = -x0, y0 = x0, y1 = -x0, r2max = 0;
-  for (const Bounds& b : rows)
-    x0 = std::min(x0, b.x0), x1 = std::max(x1, b.x1), y0 = std::min(y0, b.y0), y1 = std::max(y1, b.y1),
-    r2max = std::max(r2max, b.r2max);
+  bool border_ok = true;
+  auto extend = [&](const Eigen::Vector2d& xn) {
+    const float xu = float(xn.x()), yu = float(xn.y());
+    x0 = std::min(x0, xu), x1 = std::max(x1, xu), y0 = std::min(y0, yu), y1 = std::max(y1, yu);
+    r2max = std::max(r2max, xu * xu + yu * yu);
+  };
+  for (const Eigen::Vector2i& b : border) {
+    const auto xn = K.undistort(Eigen::Vector2d((b.x() - K.cx) / K.fx, (b.y() - K.cy) / K.fy));
+    if (!xn || !xn->allFinite()) {
+      border_ok = false;
+      break;
+    }
+    extend(*xn);
+  }
+  if (!border_ok) {
+    x0 = std::numeric_limits<float>::infinity(), x1 = -x0, y0 = x0, y1 = -x0, r2max = 0;
+    parallel_for(pr->tiles_y, worker_count(threads), [&](int ty) { pr->need(0, K.width - 1, ty * PixelRays::kTile, ty * PixelRays::kTile); });
+    for (size_t p = 0; p < pr->rays.size(); ++p)
+      if (pr->rays[p].allFinite()) extend(pr->rays[p].cast<double>());
+  }
   const float mx = 2.f / float(K.fx), my = 2.f / float(K.fy);  // two pixels of margin
   pr->x0 = x0 - mx, pr->x1 = x1 + mx, pr->y0 = y0 - my, pr->y1 = y1 + my;
   if (K.has_distortion()) {
@@ -368,6 +423,7 @@ class Raster {
     }
     ++st_.triangles_drawn;
     st_.pixels_tested += size_t(xb - xa + 1) * size_t(yb - ya + 1);
+    pr_.need(xa, xb, ya, yb);
     for (int y = ya; y <= yb; ++y) {
       const size_t row = size_t(y) * size_t(K_.width);
       for (int x = xa; x <= xb; ++x) {
@@ -456,6 +512,14 @@ MeshRasterizer::~MeshRasterizer() = default;
 size_t MeshRasterizer::triangles() const { return impl_->faces.size(); }
 
 void MeshRasterizer::prepare(const Intrinsics& K, int threads) const { rays_of(K, threads); }
+
+MeshRasterizer::RayTiles MeshRasterizer::ray_tiles() const {
+  std::lock_guard<std::mutex> lock(impl_->rays_mutex);
+  RayTiles t;
+  for (const auto& r : impl_->rays)
+    t.made += r->tiles_made.load(std::memory_order_relaxed), t.total += size_t(r->tiles_x) * size_t(r->tiles_y);
+  return t;
+}
 
 std::shared_ptr<const void> MeshRasterizer::rays_of(const Intrinsics& K, int threads) const {
   std::lock_guard<std::mutex> lock(impl_->rays_mutex);

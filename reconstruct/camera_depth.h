@@ -68,11 +68,16 @@ class MeshRasterizer {
   // Distance along each pixel's ray to the nearest triangle, 0 where none.
   // Safe to call from several threads at once.
   ImageF distance_image(const Intrinsics& K, const Eigen::Isometry3d& world_from_camera, Stats* stats = nullptr) const;
-  // Computes and keeps the pixel rays of `K` (distance_image does on first
-  // use, in its own thread): callers that draw from several threads prepare
-  // them once, in parallel.
+  // Sets up the pixel rays of `K` (distance_image does on first use): the
+  // image's window through the lens; each 16 x 16 tile's rays are then made
+  // when a triangle first covers it, by whichever drawing thread comes first.
   void prepare(const Intrinsics& K, int threads = 0) const;
   size_t triangles() const;
+  // Ray tiles made so far and in all, over every intrinsics prepared.
+  struct RayTiles {
+    size_t made = 0, total = 0;
+  };
+  RayTiles ray_tiles() const;
 
  private:
   struct Impl;

@@ -203,3 +203,41 @@ TEST(MeshRasterizer, BackFacesLeftOutChangeNothingOnAClosedSurface) {
   const ImageF inside = front.distance_image(camera(false), Eigen::Isometry3d::Identity());
   for (float v : inside.data) ASSERT_EQ(v, 0.f);
 }
+
+TEST(MeshRasterizer, PixelRaysMadeOnlyWhereTrianglesFall) {
+  // A small sphere in a corner of the view: its tiles' rays are made, the
+  // rest never are, and the image still equals the ray casts.
+  const Mesh m = sphere({0.0f, 0.0f, 0.0f}, 0.02f, 24, 48);
+  const MeshRasterizer raster(m);
+  const Intrinsics K = camera(true);
+  const MeshRasterizer::RayTiles none = raster.ray_tiles();
+  EXPECT_EQ(none.total, 0u);  // nothing prepared yet
+  const Eigen::Isometry3d pose = looking_at({0.05, 0.04, -0.3}, {0.05, 0.04, 0.0});
+  raster.prepare(K);
+  EXPECT_EQ(raster.ray_tiles().total, 13u * 10u);  // 200 x 150 pixels in 16 x 16 tiles
+  EXPECT_EQ(raster.ray_tiles().made, 0u);
+  const ImageF b = raster.distance_image(K, pose);
+  const MeshRasterizer::RayTiles t = raster.ray_tiles();
+  EXPECT_GT(t.made, 0u);
+  EXPECT_LT(t.made, t.total / 4);
+  auto caster = MeshRaycaster::create(m);
+  ASSERT_TRUE(caster);
+  const ImageF a = (*caster)->distance_image(K, pose, 1);
+  size_t hits = 0, differ = 0;
+  for (size_t p = 0; p < a.data.size(); ++p) {
+    hits += a.data[p] > 0;
+    differ += (a.data[p] > 0) != (b.data[p] > 0) || std::abs(a.data[p] - b.data[p]) > 5e-5f;
+  }
+  EXPECT_GT(hits, 300u);
+  EXPECT_LE(differ, 3u);
+  // A lens whose image corners cannot be undistorted (r (1 - 0.5 r^2) peaks
+  // below the corners' distorted radius): every tile is made at once and the
+  // corners stay without rays.
+  Intrinsics folded = camera(false);
+  folded.dist = {-0.5, 0, 0, 0, 0};
+  const MeshRasterizer other(m);
+  other.prepare(folded);
+  EXPECT_EQ(other.ray_tiles().made, other.ray_tiles().total);
+  const ImageF c = other.distance_image(folded, pose);
+  EXPECT_EQ(c.data[0], 0.f);
+}

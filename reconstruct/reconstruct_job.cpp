@@ -9,6 +9,7 @@
 #include <numbers>
 #include <optional>
 #include <set>
+#include <sys/resource.h>
 
 #include <spdlog/fmt/fmt.h>
 
@@ -74,8 +75,17 @@ namespace {
 struct Timer {
   Report& rep;
   Stopwatch clock;
+  double cpu0 = cpu_now();
+  static double cpu_now() {
+    rusage u{};
+    getrusage(RUSAGE_SELF, &u);
+    return u.ru_utime.tv_sec + u.ru_stime.tv_sec + 1e-6 * (u.ru_utime.tv_usec + u.ru_stime.tv_usec);
+  }
   void lap(const std::string& step) {
     rep.counts["seconds_" + step] = clock.seconds();
+    const double c = cpu_now();
+    rep.counts["cpu_" + step] = c - cpu0;
+    cpu0 = c;
     clock = Stopwatch();
   }
 };
@@ -513,6 +523,9 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   rep.skipped["facet_camera_pairs_outside_image"] = double(st.outside_image);
   rep.skipped["camera_depth_triangles_outside_view"] = double(culled);
   rep.skipped["camera_depth_back_faces"] = double(back);
+  const MeshRasterizer::RayTiles tiles = raster.ray_tiles();
+  rep.counts["camera_depth_ray_tiles"] = double(tiles.made);
+  rep.skipped["camera_depth_ray_tiles_not_needed"] = double(tiles.total - tiles.made);
   timer.lap("facets");
 
   Eigen::AlignedBox3d bounds;
