@@ -186,7 +186,8 @@ namespace {
 struct PixelRays {
   static constexpr int kTile = 16;  // pixels a side
   Intrinsics K;
-  mutable std::vector<Eigen::Vector2f> rays;
+  // Rays as separate x and y rows (so a row of pixels is tested in SIMD lanes).
+  mutable std::vector<float> ray_x, ray_y;
   mutable std::vector<float> length;
   float x0 = 0, x1 = 0, y0 = 0, y1 = 0;  // normalised window of the image, a little enlarged
   float valid_r2 = std::numeric_limits<float>::infinity();
@@ -231,7 +232,8 @@ struct PixelRays {
         p2 = p1;
         p1 = xn && xn->allFinite() ? *xn : none;
         if (!p1.allFinite()) continue;
-        rays[size_t(y) * K.width + x] = p1.cast<float>();
+        ray_x[size_t(y) * K.width + x] = float(p1.x());
+        ray_y[size_t(y) * K.width + x] = float(p1.y());
         length[size_t(y) * K.width + x] = float(std::sqrt(p1.squaredNorm() + 1.0));
       }
     }
@@ -242,7 +244,8 @@ std::shared_ptr<const PixelRays> make_pixel_rays(const Intrinsics& K, int thread
   auto pr = std::make_shared<PixelRays>();
   pr->K = K;
   const float nan = std::numeric_limits<float>::quiet_NaN();
-  pr->rays.assign(size_t(K.width) * K.height, Eigen::Vector2f(nan, nan));
+  pr->ray_x.assign(size_t(K.width) * K.height, nan);
+  pr->ray_y.assign(size_t(K.width) * K.height, nan);
   pr->length.assign(size_t(K.width) * K.height, 0.f);
   pr->tiles_x = (std::max(K.width, 0) + PixelRays::kTile - 1) / PixelRays::kTile;
   pr->tiles_y = (std::max(K.height, 0) + PixelRays::kTile - 1) / PixelRays::kTile;
@@ -272,8 +275,8 @@ std::shared_ptr<const PixelRays> make_pixel_rays(const Intrinsics& K, int thread
   if (!border_ok) {
     x0 = std::numeric_limits<float>::infinity(), x1 = -x0, y0 = x0, y1 = -x0, r2max = 0;
     parallel_for(pr->tiles_y, worker_count(threads), [&](int ty) { pr->need(0, K.width - 1, ty * PixelRays::kTile, ty * PixelRays::kTile); });
-    for (size_t p = 0; p < pr->rays.size(); ++p)
-      if (pr->rays[p].allFinite()) extend(pr->rays[p].cast<double>());
+    for (size_t p = 0; p < pr->ray_x.size(); ++p)
+      if (std::isfinite(pr->ray_x[p]) && std::isfinite(pr->ray_y[p])) extend(Eigen::Vector2d(pr->ray_x[p], pr->ray_y[p]));
   }
   const float mx = 2.f / float(K.fx), my = 2.f / float(K.fy);  // two pixels of margin
   pr->x0 = x0 - mx, pr->x1 = x1 + mx, pr->y0 = y0 - my, pr->y1 = y1 + my;
@@ -424,19 +427,34 @@ class Raster {
     ++st_.triangles_drawn;
     st_.pixels_tested += size_t(xb - xa + 1) * size_t(yb - ya + 1);
     pr_.need(xa, xb, ya, yb);
+    drawn_x0_ = std::min(drawn_x0_, xa), drawn_x1_ = std::max(drawn_x1_, xb);
+    drawn_y0_ = std::min(drawn_y0_, ya), drawn_y1_ = std::max(drawn_y1_, yb);
+    const float e0x = t.e[0].x(), e0y = t.e[0].y(), e0z = t.e[0].z();
+    const float e1x = t.e[1].x(), e1y = t.e[1].y(), e1z = t.e[1].z();
+    const float e2x = t.e[2].x(), e2y = t.e[2].y(), e2z = t.e[2].z();
+    const float nx = t.n.x(), ny = t.n.y(), nz = t.n.z(), td = t.d;
     for (int y = ya; y <= yb; ++y) {
       const size_t row = size_t(y) * size_t(K_.width);
+      const float* rx = pr_.ray_x.data() + row;
+      const float* ry = pr_.ray_y.data() + row;
+      float* z = depth_.data.data() + row;
+      // Branch-free (rows are short: a triangle covers a few pixels, where
+      // mispredicted branches cost more than the tests). NaN rays fail every
+      // comparison; 0 in the buffer is no surface yet.
       for (int x = xa; x <= xb; ++x) {
-        const Eigen::Vector2f& u = pr_.rays[row + size_t(x)];
-        auto dot = [&](const Eigen::Vector3f& e) { return e.x() * u.x() + e.y() * u.y() + e.z(); };
-        if (!(dot(t.e[0]) >= 0 && dot(t.e[1]) >= 0 && dot(t.e[2]) >= 0)) continue;  // NaN rays fail here
-        const float d = t.d / dot(t.n);
-        if (!(d > 0)) continue;
-        float& z = depth_.data[row + size_t(x)];
-        if (d < z) z = d;
+        const float ux = rx[x], uy = ry[x];
+        const bool inside = (e0x * ux + e0y * uy + e0z >= 0) & (e1x * ux + e1y * uy + e1z >= 0) & (e2x * ux + e2y * uy + e2z >= 0);
+        const float d = td / (nx * ux + ny * uy + nz);
+        const bool nearer = inside & (d > 0) & ((d < z[x]) | (z[x] == 0));
+        z[x] = nearer ? d : z[x];
       }
     }
   }
+  // The pixels tested so far lie in [x0, x1] x [y0, y1] (empty: x0 > x1).
+  int drawn_x0() const { return drawn_x0_; }
+  int drawn_x1() const { return drawn_x1_; }
+  int drawn_y0() const { return drawn_y0_; }
+  int drawn_y1() const { return drawn_y1_; }
 
  private:
   static constexpr float kNear = 1e-6f;   // metres in front of the centre
@@ -453,6 +471,8 @@ class Raster {
   MeshRasterizer::Stats& st_;
   bool distorted_ = false;
   float dist_[5];
+  int drawn_x0_ = std::numeric_limits<int>::max(), drawn_x1_ = -1;
+  int drawn_y0_ = std::numeric_limits<int>::max(), drawn_y1_ = -1;
 };
 
 }  // namespace
@@ -532,7 +552,7 @@ std::shared_ptr<const void> MeshRasterizer::rays_of(const Intrinsics& K, int thr
 ImageF MeshRasterizer::distance_image(const Intrinsics& K, const Eigen::Isometry3d& world_from_camera, Stats* stats) const {
   const Impl& m = *impl_;
   const auto pr = std::static_pointer_cast<const PixelRays>(rays_of(K, 1));
-  ImageF depth(K.width, K.height, 1, std::numeric_limits<float>::infinity());
+  ImageF depth(K.width, K.height, 1, 0.f);  // 0: no surface (yet)
   Stats st;
   Raster raster(*pr, depth, st);
   const Eigen::Isometry3d camera_from_world = world_from_camera.inverse();
@@ -596,10 +616,13 @@ ImageF MeshRasterizer::distance_image(const Intrinsics& K, const Eigen::Isometry
     if (projected && !(distorted && extent > 16.f)) raster.pixels(t, lo, hi, Raster::kRound + raster.bow() * extent * extent);
     else raster.clipped(t, a, b, c);
   }
-  // Depth along the axis to distance along the ray; misses to 0.
-  for (size_t p = 0; p < depth.data.size(); ++p) {
-    float& d = depth.data[p];
-    d = d < std::numeric_limits<float>::infinity() ? d * pr->length[p] : 0.f;
+  // Depth along the axis to distance along the ray, where pixels were drawn.
+  for (int y = raster.drawn_y0(); y <= raster.drawn_y1(); ++y) {
+    const size_t row = size_t(y) * size_t(K.width);
+    for (int x = raster.drawn_x0(); x <= raster.drawn_x1(); ++x) {
+      float& d = depth.data[row + size_t(x)];
+      d = d > 0 ? d * pr->length[row + size_t(x)] : 0.f;
+    }
   }
   if (stats) *stats = st;
   return depth;
