@@ -155,8 +155,27 @@ TEST(PlyLoad, RoundTrip) {
   ASSERT_TRUE(write_ply_mesh(p, m));
   auto back = read_ply_mesh(p);
   ASSERT_TRUE(back) << back.error().message;
-  EXPECT_EQ(back->vertices.size(), 4u);
-  EXPECT_EQ(back->faces.size(), 4u);
+  // PCL reads back exactly what was written.
+  ASSERT_EQ(back->vertices.size(), m.vertices.size());
+  ASSERT_EQ(back->faces.size(), m.faces.size());
+  for (size_t i = 0; i < m.vertices.size(); ++i) EXPECT_EQ(back->vertices[i], m.vertices[i]);
+  for (size_t i = 0; i < m.faces.size(); ++i) EXPECT_EQ(back->faces[i], m.faces[i]);
+  // A face naming no vertex is refused, and the file written before stays.
+  Mesh bad = m;
+  bad.faces.push_back({0, 1, 4});
+  EXPECT_FALSE(write_ply_mesh(p, bad));
+  auto kept = read_ply_mesh(p);
+  ASSERT_TRUE(kept) << kept.error().message;
+  EXPECT_EQ(kept->faces.size(), m.faces.size());
+  // No faces: a point set with an empty face element.
+  Mesh points;
+  points.vertices = {{0.5f, -1.25f, 3}};
+  ASSERT_TRUE(write_ply_mesh(p, points));
+  auto pts = read_ply_mesh(p);
+  ASSERT_TRUE(pts) << pts.error().message;
+  EXPECT_EQ(pts->vertices.size(), 1u);
+  EXPECT_EQ(pts->vertices[0], points.vertices[0]);
+  EXPECT_TRUE(pts->faces.empty());
   fs::remove(p);
 }
 

@@ -87,6 +87,26 @@ std::vector<SdfSample> to_samples(const std::vector<std::pair<Eigen::Vector3i, f
   return out;
 }
 
+// Reads voxels of one leaf node by offset (neighbours mostly lie in the
+// voxel's own leaf); `holds` tells whether a coordinate is in it. Values and
+// active states are the accessor's.
+template <class Leaf>
+struct LeafReader {
+  const Leaf& leaf;
+  const Coord origin;
+  explicit LeafReader(const Leaf& l) : leaf(l), origin(l.origin()) {}
+  bool holds(const Coord& c) const {
+    constexpr int32_t kMask = ~int32_t(Leaf::DIM - 1);
+    return (c.x() & kMask) == origin.x() && (c.y() & kMask) == origin.y() && (c.z() & kMask) == origin.z();
+  }
+  // Whether the voxel is active; its value in `v` either way.
+  bool probe(const Coord& c, typename Leaf::ValueType& v) const {
+    const openvdb::Index o = Leaf::coordToOffset(c);
+    v = leaf.getValue(o);
+    return leaf.isValueOn(o);
+  }
+};
+
 Coord coord_of(const Eigen::Vector3d& p, double voxel) {
   return Coord(int(std::lround(p.x() / voxel)), int(std::lround(p.y() / voxel)), int(std::lround(p.z() / voxel)));
 }
@@ -516,9 +536,13 @@ std::vector<EvidenceVoxel> SparseVolume::evidence(double reliability_sigma_m) co
   std::vector<std::vector<EvidenceVoxel>> per_leaf(lm.leafCount());
   tbb::parallel_for(tbb::blocked_range<size_t>(0, lm.leafCount()), [&](const tbb::blocked_range<size_t>& range) {
     auto acc = m.tsdf->getConstAccessor();
-    auto value = [&](const Coord& c, openvdb::Vec3s& v) { return acc.probeValue(c, v) && v[1] > 0; };
     for (size_t li = range.begin(); li != range.end(); ++li) {
       std::vector<EvidenceVoxel>& out = per_leaf[li];
+      const LeafReader<TsdfGrid::TreeType::LeafNodeType> here(lm.leaf(li));
+      auto value = [&](const Coord& c, openvdb::Vec3s& v) {
+        if (here.holds(c)) return here.probe(c, v) && v[1] > 0;
+        return acc.probeValue(c, v) && v[1] > 0;
+      };
       for (auto it = lm.leaf(li).cbeginValueOn(); it; ++it) {
         const openvdb::Vec3s v = *it;
         if (v[1] <= 0) continue;
@@ -639,17 +663,23 @@ std::vector<SurfaceCrossing> SparseVolume::crossings(double max_jump_voxels) con
   std::vector<std::vector<SurfaceCrossing>> per_leaf(lm.leafCount());
   tbb::parallel_for(tbb::blocked_range<size_t>(0, lm.leafCount()), [&](const tbb::blocked_range<size_t>& range) {
     auto acc = m.tsdf->getConstAccessor();
-    auto get = [&](const Eigen::Vector3i& p) -> std::optional<float> {
-      const Coord c(p.x(), p.y(), p.z());
-      const auto* leaf = acc.probeConstLeaf(c);
-      if (!leaf) return std::nullopt;
-      const auto off = leaf->coordToOffset(c);
-      if (!leaf->isValueOn(off)) return std::nullopt;
-      const openvdb::Vec3s& v = leaf->getValue(off);
-      if (!(v[1] > 0) || !std::isfinite(v[0])) return std::nullopt;
-      return v[0];
-    };
-    for (size_t li = range.begin(); li != range.end(); ++li)
+    for (size_t li = range.begin(); li != range.end(); ++li) {
+      const LeafReader<TsdfGrid::TreeType::LeafNodeType> here(lm.leaf(li));
+      auto get = [&](const Eigen::Vector3i& p) -> std::optional<float> {
+        const Coord c(p.x(), p.y(), p.z());
+        openvdb::Vec3s v;
+        if (here.holds(c)) {
+          if (!here.probe(c, v)) return std::nullopt;
+        } else {
+          const auto* leaf = acc.probeConstLeaf(c);
+          if (!leaf) return std::nullopt;
+          const auto off = leaf->coordToOffset(c);
+          if (!leaf->isValueOn(off)) return std::nullopt;
+          v = leaf->getValue(off);
+        }
+        if (!(v[1] > 0) || !std::isfinite(v[0])) return std::nullopt;
+        return v[0];
+      };
       for (auto it = lm.leaf(li).cbeginValueOn(); it; ++it) {
         const openvdb::Vec3s v = *it;
         if (!(v[1] > 0) || !std::isfinite(v[0])) continue;
@@ -658,6 +688,7 @@ std::vector<SurfaceCrossing> SparseVolume::crossings(double max_jump_voxels) con
         for (int a = 0; a < 3; ++a)
           if (auto x = crossing_at(p, a, v[0], m.voxel, max_jump_voxels, get)) per_leaf[li].push_back(*x);
       }
+    }
   });
   size_t n = 0;
   for (const auto& l : per_leaf) n += l.size();
