@@ -220,13 +220,22 @@ void SparseVolume::integrate(const std::vector<DepthObservation>& views, int thr
       openvdb::MaskTree mask(false);
       openvdb::tree::ValueAccessor<openvdb::MaskTree> acc(mask);
       Coord last_lo(std::numeric_limits<int>::max()), last_hi = last_lo;
+      const Intrinsics& K = v.intrinsics;
+      const bool pinhole = !K.has_distortion();
       for (int y = 0; y < depth.height; y += 2)
         for (int x = 0; x < depth.width; x += 2) {
           const uint16_t d = depth.data[size_t(y) * depth.width + x];
           if (d == 0) continue;
-          auto pc = v.intrinsics.unproject({double(x), double(y)}, d * v.unit_m);
-          if (!pc) continue;
-          const Eigen::Vector3d pw = v.world_from_camera * *pc;
+          // Through a pinhole, unproject's own arithmetic inline.
+          Eigen::Vector3d pc;
+          if (pinhole) {
+            pc = Eigen::Vector3d((x - K.cx) / K.fx, (y - K.cy) / K.fy, 1.0) * (d * v.unit_m);
+          } else {
+            auto u = K.unproject({double(x), double(y)}, d * v.unit_m);
+            if (!u) continue;
+            pc = *u;
+          }
+          const Eigen::Vector3d pw = v.world_from_camera * pc;
           if (!m.in_crop(pw)) {
             ++t.outside;
             continue;

@@ -239,11 +239,18 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
       const View& v = views[size_t(i)];
       if (v.depth.empty()) return;
       const Eigen::Isometry3d world_from_depth = v.world_from_camera * color_from_depth;
+      const Intrinsics& K = *depth_K;
+      const bool pinhole = !K.has_distortion();
       for (int y = 0; y < v.depth.height; y += 4)
         for (int x = 0; x < v.depth.width; x += 4)
-          if (const uint16_t d = v.depth.data[size_t(y) * v.depth.width + x])
-            if (auto p = depth_K->unproject({double(x), double(y)}, d * unit))
+          if (const uint16_t d = v.depth.data[size_t(y) * v.depth.width + x]) {
+            // Through a pinhole, unproject's own arithmetic inline.
+            if (pinhole)
+              per_view[size_t(i)].push_back(
+                  (world_from_depth * (Eigen::Vector3d((x - K.cx) / K.fx, (y - K.cy) / K.fy, 1.0) * (d * unit))).cast<float>());
+            else if (auto p = K.unproject({double(x), double(y)}, d * unit))
               per_view[size_t(i)].push_back((world_from_depth * *p).cast<float>());
+          }
     });
     for (const auto& pv : per_view) sample.insert(sample.end(), pv.begin(), pv.end());
   }
