@@ -186,7 +186,7 @@ namespace {
 struct PixelRays {
   static constexpr int kTile = 16;  // pixels a side
   Intrinsics K;
-  // Rays as separate x and y rows (so a row of pixels is tested in SIMD lanes).
+  // Rays as separate x and y rows (a row of pixels reads two contiguous runs).
   mutable std::vector<float> ray_x, ray_y;
   mutable std::vector<float> length;
   float x0 = 0, x1 = 0, y0 = 0, y1 = 0;  // normalised window of the image, a little enlarged
