@@ -97,10 +97,16 @@ void BM_Psnr(benchmark::State& state) {  // the cheap peer of SSIM
 }
 BENCHMARK(BM_Psnr)->Unit(benchmark::kMillisecond);
 
-void BM_Undistort(benchmark::State& state) {
+// A 640 x 480 camera with moderate radial and tangential distortion.
+Intrinsics bench_lens() {
   Intrinsics k;
   k.width = 640; k.height = 480; k.fx = 600; k.fy = 600; k.cx = 320; k.cy = 240;
   k.dist = {-0.12, 0.05, 0.0008, -0.0005, 0};
+  return k;
+}
+
+void BM_Undistort(benchmark::State& state) {
+  const Intrinsics k = bench_lens();
   double x = 0;
   for (auto _ : state) {
     benchmark::DoNotOptimize(k.ray({x, 0.75 * x}));
@@ -112,9 +118,7 @@ BENCHMARK(BM_Undistort);
 // The same pixels, each started from its left neighbour's answer: the ratio
 // to BM_Undistort is the saving.
 void BM_UndistortFromNeighbour(benchmark::State& state) {
-  Intrinsics k;
-  k.width = 640; k.height = 480; k.fx = 600; k.fy = 600; k.cx = 320; k.cy = 240;
-  k.dist = {-0.12, 0.05, 0.0008, -0.0005, 0};
+  const Intrinsics k = bench_lens();
   double x = 0;
   Eigen::Vector2d previous = Eigen::Vector2d::Constant(std::nan(""));
   for (auto _ : state) {
@@ -126,18 +130,16 @@ void BM_UndistortFromNeighbour(benchmark::State& state) {
 }
 BENCHMARK(BM_UndistortFromNeighbour);
 
-// Started from the two left neighbours' answers extrapolated, as the
-// rasterizer makes its pixel rays.
+// The same pixels, each started from its two previous neighbours' answers
+// extrapolated, as the rasterizer makes its pixel rays.
 void BM_UndistortExtrapolated(benchmark::State& state) {
-  Intrinsics k;
-  k.width = 640; k.height = 480; k.fx = 600; k.fy = 600; k.cx = 320; k.cy = 240;
-  k.dist = {-0.12, 0.05, 0.0008, -0.0005, 0};
+  const Intrinsics k = bench_lens();
   double x = 0;
   const Eigen::Vector2d none = Eigen::Vector2d::Constant(std::nan(""));
   Eigen::Vector2d p1 = none, p2 = none;
   for (auto _ : state) {
     const Eigen::Vector2d start = p2.allFinite() ? Eigen::Vector2d(2 * p1 - p2) : p1;
-    const auto xn = k.undistort({(x - k.cx) / k.fx, (0.75 * 320 - k.cy) / k.fy}, start);
+    const auto xn = k.undistort({(x - k.cx) / k.fx, (0.75 * x - k.cy) / k.fy}, start);
     benchmark::DoNotOptimize(xn);
     p2 = x > 639 ? none : p1;
     p1 = x > 639 ? none : *xn;
@@ -164,9 +166,7 @@ void BM_CameraDepth(benchmark::State& state) {
       m.faces.push_back({a, b, b + segments});
       m.faces.push_back({a, b + segments, a + segments});
     }
-  Intrinsics k;
-  k.width = 640; k.height = 480; k.fx = 600; k.fy = 600; k.cx = 320; k.cy = 240;
-  k.dist = {-0.12, 0.05, 0.0008, -0.0005, 0};
+  const Intrinsics k = bench_lens();
   Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
   pose.translation() = Eigen::Vector3d(0.01, -0.005, -0.3);  // looking along +z at the sphere
   if (state.range(0) == 0) {
