@@ -2,7 +2,9 @@
 //   build/tests/s2r_microbench [--benchmark_filter=...]
 // Each pair has a peer in the same run: compare ratios, not absolute times.
 #include <benchmark/benchmark.h>
+#include <unistd.h>
 
+#include <filesystem>
 #include <optional>
 
 #include "capture/synth_rig.h"
@@ -10,7 +12,9 @@
 #include "core/image_metrics.h"
 #include "core/mesh.h"
 #include "core/paths.h"
+#include "core/progress.h"
 #include "reconstruct/camera_depth.h"
+#include "reconstruct/reconstruct_job.h"
 #include "render/raytrace_job.h"
 
 namespace s2r {
@@ -184,6 +188,45 @@ void BM_CameraDepth(benchmark::State& state) {
   }
 }
 BENCHMARK(BM_CameraDepth)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
+
+// The whole reconstruct job as `s2r bench reconstruct` times it (rig bunny,
+// 24 views, depth geometry, uniform facets, no textures) at w = arg / 10 mm,
+// in process: run under perf to see where a build's time goes. The session is
+// made once, in a temporary folder. Its peer is Open3D, in `s2r bench`.
+void BM_ReconstructJob(benchmark::State& state) {
+  static const std::filesystem::path session = [] {
+    const auto dir = std::filesystem::temp_directory_path() / ("s2r_microbench_" + std::to_string(::getpid()));
+    SynthOptions so;
+    so.views = 24;
+    so.seed = 3;
+    if (!synth_session(so, dir / "session")) return std::filesystem::path();
+    // Without the true mesh the job skips its check against the truth, which
+    // the build's seconds leave out anyway: the profile shows the build alone.
+    std::filesystem::remove(dir / "session" / "ground_truth" / "geometry.ply");
+    return dir / "session";
+  }();
+  if (session.empty()) {
+    state.SkipWithError("cannot make the rig session");
+    return;
+  }
+  ReconstructJob job;
+  job.session = session;
+  job.out = session.parent_path() / "model";
+  job.voxel_m = 1e-4 * double(state.range(0));
+  job.geometry = "depth";
+  job.per_region = false;
+  job.textures = false;
+  set_progress_enabled(false);
+  for (auto _ : state) {
+    auto r = run_reconstruct_job(job);
+    if (!r) {
+      state.SkipWithError(r.error().message.c_str());
+      return;
+    }
+    state.SetIterationTime(r->seconds);
+  }
+}
+BENCHMARK(BM_ReconstructJob)->Arg(15)->Arg(30)->Arg(60)->UseManualTime()->Unit(benchmark::kMillisecond);
 
 }  // namespace
 }  // namespace s2r
