@@ -8,6 +8,7 @@
 #include <numbers>
 
 #include "reconstruct/camera_depth.h"
+#include "reconstruct/microfacets.h"
 
 using namespace s2r;
 
@@ -240,4 +241,33 @@ TEST(MeshRasterizer, PixelRaysMadeOnlyWhereTrianglesFall) {
   EXPECT_EQ(other.ray_tiles().made, other.ray_tiles().total);
   const ImageF c = other.distance_image(folded, pose);
   EXPECT_EQ(c.data[0], 0.f);
+}
+
+TEST(MeshRasterizer, VisibilityGridDrawsTheWholeImagesRays) {
+  // The grid camera's pixel (gx, gy) is the whole camera's (k gx + o, k gy + o):
+  // the same ray, so the same distance (float rounding aside).
+  const Mesh m = sphere({0.0f, 0.0f, 0.0f}, 0.05f, 32, 64);
+  const MeshRasterizer raster(m);
+  const Eigen::Isometry3d pose = looking_at({0.02, 0.01, -0.25}, {0.0, 0.0, 0.0});
+  for (bool distorted : {false, true})
+    for (int k : {2, 3}) {
+      const Intrinsics K = camera(distorted), G = visibility_grid(K, k);
+      EXPECT_EQ(G.width, (K.width - 1 - (k - 1) / 2) / k + 1);
+      const ImageF whole = raster.distance_image(K, pose), grid = raster.distance_image(G, pose);
+      ASSERT_EQ(grid.width, G.width);
+      size_t hits = 0, differ = 0;
+      for (int gy = 0; gy < G.height; ++gy)
+        for (int gx = 0; gx < G.width; ++gx) {
+          const float a = whole.at(k * gx + (k - 1) / 2, k * gy + (k - 1) / 2), b = grid.at(gx, gy);
+          hits += a > 0;
+          differ += (a > 0) != (b > 0) || std::abs(a - b) > 2e-6f * a;
+        }
+      EXPECT_GT(hits, 400u) << "distorted " << distorted << ", k " << k;
+      EXPECT_LE(differ, 2u) << "distorted " << distorted << ", k " << k;  // an edge pixel may round the other way
+    }
+  // 0.45 m / 180 px: 2.5 mm a pixel; the spacing stays within w/3.
+  EXPECT_EQ(visibility_stride(0.024, 0.45, camera(false)), 3);
+  EXPECT_EQ(visibility_stride(0.015, 0.45, camera(false)), 2);
+  EXPECT_EQ(visibility_stride(0.006, 0.45, camera(false)), 1);
+  EXPECT_EQ(visibility_stride(0.006, std::numeric_limits<double>::quiet_NaN(), camera(false)), 1);
 }

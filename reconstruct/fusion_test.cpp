@@ -301,6 +301,43 @@ TEST(Facets, OccludedCameraAndUnseenFacet) {
   EXPECT_EQ(facets[1].camera_count, 0u);
 }
 
+TEST(Facets, VisibilityGridReadFromWholeOrGridDepthAlike) {
+  // Depth in blocks of 5 x 5 pixels, occluding (1 m) or empty (0) in turn;
+  // facets at 1.5 m all over the view. With a stride the test reads the same
+  // grid points from the whole image as from the grid's own image.
+  const Intrinsics K = camera();
+  ImageF whole(K.width, K.height, 1, 0.f);
+  for (int y = 0; y < K.height; ++y)
+    for (int x = 0; x < K.width; ++x) whole.at(x, y) = (x / 5 + y / 5) % 2 ? 1.f : 0.f;
+  std::vector<EvidenceVoxel> ev;
+  for (int i = 0; i < 40; ++i)
+    for (int j = 0; j < 30; ++j) {
+      EvidenceVoxel e;
+      e.ijk = {i, j, 0};
+      const Eigen::Vector3d ray = *K.ray({(i + 0.37) * K.width / 40.0, (j + 0.61) * K.height / 30.0});
+      e.centre = (1.5 * ray).cast<float>(), e.reliability = 1;
+      ev.push_back(e);
+    }
+  FacetOptions fo;
+  fo.voxel_m = 0.001;
+  fo.keep_unseen = true;
+  for (int k : {1, 2, 3}) {
+    const Intrinsics G = visibility_grid(K, k);
+    ImageF grid(G.width, G.height, 1, 0.f);
+    for (int gy = 0; gy < G.height; ++gy)
+      for (int gx = 0; gx < G.width; ++gx) grid.at(gx, gy) = whole.at(k * gx + (k - 1) / 2, k * gy + (k - 1) / 2);
+    std::vector<FacetRecord> fa, fb;
+    std::vector<uint32_t> ca, cb;
+    const FacetStats sa = build_facets(ev, {{K, Eigen::Isometry3d::Identity(), &whole, {}, k}}, fo, fa, ca);
+    const FacetStats sb = build_facets(ev, {{K, Eigen::Isometry3d::Identity(), &grid, {}, k}}, fo, fb, cb);
+    EXPECT_GT(sa.occluded, 300u) << k;
+    EXPECT_GT(sa.camera_links, 300u) << k;
+    EXPECT_EQ(sa.occluded, sb.occluded) << k;
+    ASSERT_EQ(fa.size(), fb.size());
+    for (size_t i = 0; i < fa.size(); ++i) ASSERT_EQ(fa[i].camera_count, fb[i].camera_count) << k << " " << i;
+  }
+}
+
 TEST(CameraTexture, RgbazRoundTrip) {
   const fs::path p = fs::temp_directory_path() / ("s2r_rgbaz_" + std::to_string(::getpid()) + ".exr");
   RgbazImage t{ImageU8(8, 4, 4, 0), ImageF(8, 4, 1, 0.f)};

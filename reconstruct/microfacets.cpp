@@ -22,6 +22,23 @@ double voxel_for_error(double target_px, double focal_px, double distance_m, dou
   return 2 * target_px * distance_m / (focal_px * s);
 }
 
+Intrinsics visibility_grid(const Intrinsics& K, int stride) {
+  const int k = std::max(1, stride), off = (k - 1) / 2;
+  if (k == 1) return K;
+  Intrinsics G = K;
+  G.width = K.width > off ? (K.width - 1 - off) / k + 1 : 0;
+  G.height = K.height > off ? (K.height - 1 - off) / k + 1 : 0;
+  G.fx = K.fx / k, G.fy = K.fy / k;
+  G.cx = (K.cx - off) / k, G.cy = (K.cy - off) / k;
+  return G;
+}
+
+int visibility_stride(double w, double far_m, const Intrinsics& K) {
+  const double pixel_m = far_m / std::min(K.fx, K.fy);  // a pixel's width at far_m
+  if (!(w > 0) || !(pixel_m > 0) || !std::isfinite(pixel_m)) return 1;
+  return int(std::clamp(std::floor(w / (3 * pixel_m)), 1.0, 64.0));
+}
+
 CameraSpacing camera_spacing(const std::vector<Eigen::Isometry3d>& cams, const Eigen::Vector3d& centre) {
   CameraSpacing cs;
   if (cams.empty()) return cs;
@@ -134,7 +151,12 @@ FacetStats build_facets(const std::vector<EvidenceVoxel>& ev, const std::vector<
     const ImageF* D = cam.distance;
     if (!D && cam.distance_at) made = cam.distance_at(), D = &made;
     const Intrinsics& K = cam.intrinsics;
-    if (D && (D->width != K.width || D->height != K.height)) D = nullptr;  // no usable depth: nothing occludes
+    const int k = std::max(1, cam.stride), off = (k - 1) / 2;
+    const Intrinsics G = visibility_grid(K, k);
+    // Grid point (gx, gy) is D's pixel (gx, gy), or (k gx + off, k gy + off) in a whole image.
+    const bool whole = D && D->width == K.width && D->height == K.height;
+    if (D && !whole && (D->width != G.width || D->height != G.height)) D = nullptr;  // no usable depth: nothing occludes
+    const int step = whole ? k : 1, start = whole ? off : 0;
     for (size_t i = 0; i < drafts.size(); ++i) {
       const Draft& d = drafts[i];
       const Eigen::Vector3f pc = xf[c].R * d.centre + xf[c].t;
@@ -144,9 +166,9 @@ FacetStats build_facets(const std::vector<EvidenceVoxel>& ev, const std::vector<
         continue;
       }
       if (D) {
-        const int x = std::clamp(int(std::lround(px->x())), 0, K.width - 1);
-        const int y = std::clamp(int(std::lround(px->y())), 0, K.height - 1);
-        const float dd = D->data[size_t(y) * K.width + x];
+        const int gx = std::clamp(int(std::lround((px->x() - off) / k)), 0, G.width - 1);
+        const int gy = std::clamp(int(std::lround((px->y() - off) / k)), 0, G.height - 1);
+        const float dd = D->data[size_t(start + step * gy) * size_t(D->width) + size_t(start + step * gx)];
         if (dd > 0 && pc.norm() > dd + tolerance(d)) {
           ++occluded[c];
           continue;

@@ -43,14 +43,29 @@ CameraSpacing camera_spacing(const std::vector<Eigen::Isometry3d>& world_from_ca
 Eigen::Vector3d optical_axes_centre(const std::vector<Eigen::Isometry3d>& world_from_camera);
 
 // --- Facets ----------------------------------------------------------------
+// The visibility test reads a camera's depth on a grid of every `stride`-th
+// pixel each way, from pixel (stride - 1) / 2: the pixels of a camera with
+// focal lengths and image divided by `stride` (its rays are the same rays).
+// A facet's test reads the grid point nearest its centre's projection.
+Intrinsics visibility_grid(const Intrinsics& K, int stride);
+// The widest stride whose grid spacing, at `far_m` from the camera, stays
+// within w/3; at least 1. Against links from the rig bunny's true mesh
+// (24 views), the fused surface's links disagree on 8.6 % at w = 6 mm with
+// every pixel read and on 9.0 % with stride 2; at w = 3 mm a stride of 2
+// (spacing w/2) took 5.2 % to 8.6 %, which w/3 rules out.
+int visibility_stride(double w, double far_m, const Intrinsics& K);
+
 struct FacetCamera {
   Intrinsics intrinsics;
   Eigen::Isometry3d world_from_camera = Eigen::Isometry3d::Identity();
-  const ImageF* distance = nullptr;  // per-camera depth: distance along the ray, 0 = miss
+  // Per-camera depth: distance along the ray, 0 = miss. Either the whole
+  // image or the visibility grid's (visibility_grid(intrinsics, stride)).
+  const ImageF* distance = nullptr;
   // Without `distance`: makes the camera's depth when build_facets comes to
   // this camera, which drops it once the facets are tested (a model without
   // textures never holds every camera's depth at once).
   std::function<ImageF()> distance_at;
+  int stride = 1;  // the visibility grid's (see visibility_grid)
 };
 
 struct FacetOptions {

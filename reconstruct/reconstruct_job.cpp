@@ -453,7 +453,22 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   // The fused surface is wound as OpenVDB meshes it (normals inward): faces
   // turned away from a camera are left out.
   const MeshRasterizer raster(surface, MeshRasterizer::Faces::kInwardWound);
-  raster.prepare(views.front().K, job.threads);
+  // The facets' visibility test reads each camera's depth every `stride`
+  // pixels, the spacing on the evidence's far side within w/3 (see
+  // visibility_stride). Without textures only that grid is drawn.
+  std::vector<int> stride(views.size(), 1);
+  {
+    Eigen::AlignedBox3d box_e;
+    for (const auto& e : evidence) box_e.extend(e.centre.cast<double>());
+    for (size_t i = 0; i < views.size() && !box_e.isEmpty(); ++i) {
+      const Eigen::Isometry3d camera_from_world = views[i].world_from_camera.inverse();
+      double far = 0;
+      for (int c = 0; c < 8; ++c) far = std::max(far, (camera_from_world * box_e.corner(Eigen::AlignedBox3d::CornerType(c))).z());
+      stride[i] = visibility_stride(w0, far, views[i].K);
+    }
+    rep.counts["visibility_stride_max"] = double(*std::max_element(stride.begin(), stride.end()));
+  }
+  raster.prepare(job.textures ? views.front().K : visibility_grid(views.front().K, stride.front()), job.threads);
   std::atomic<size_t> drawn{0}, culled{0}, back{0}, tested{0};
   auto camera_depth = [&](const Intrinsics& K, const Eigen::Isometry3d& world_from_camera) {
     MeshRasterizer::Stats rs;
@@ -508,8 +523,13 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   // Facets.
   std::vector<FacetCamera> fc;
   for (size_t i = 0; i < views.size(); ++i) {
-    FacetCamera c{views[i].K, views[i].world_from_camera, job.textures ? &distance[i] : nullptr, {}};
-    if (!job.textures) c.distance_at = [&, i] { return camera_depth(views[i].K, views[i].world_from_camera); };
+    FacetCamera c{views[i].K, views[i].world_from_camera, job.textures ? &distance[i] : nullptr, {}, stride[i]};
+    if (!job.textures) {
+      const Intrinsics G = visibility_grid(views[i].K, stride[i]);
+      c.distance_at = [&, i, G] { return camera_depth(G, views[i].world_from_camera); };
+      rep.skipped["camera_depth_pixels_off_the_visibility_grid"] +=
+          double(views[i].K.width) * views[i].K.height - double(G.width) * G.height;
+    }
     fc.push_back(std::move(c));
   }
   FacetOptions fo;
