@@ -329,14 +329,13 @@ std::shared_ptr<const PixelRays> make_pixel_rays(const Intrinsics& K, int thread
 // The exact cone test of one triangle (camera frame, camera at the origin): a
 // ray u = (x/z, y/z, 1) meets it (in front) when s e[k].u >= 0 for all k,
 // with e[k] the plane through the origin and the edge opposite vertex k and s
-// the sign of det(a, b, c). Its depth is then z = d / n.u for the triangle's
-// plane n.p = d (the distance along the ray is z |u|): well conditioned where
-// the barycentric sums are not (the e[k] are nearly perpendicular to the
-// rays, and their dot products cancel).
+// the sign of det(a, b, c). Its inverse depth is then 1/z = m.u for the
+// triangle's plane m.p = 1 (m = n / (n.a), n its normal; the distance along
+// the ray is z |u|): well conditioned where the barycentric sums are not (the
+// e[k] are nearly perpendicular to the rays, and their dot products cancel).
 struct TriangleTest {
   Eigen::Vector3f e[3];
-  Eigen::Vector3f n;
-  float d;
+  Eigen::Vector3f m;
 };
 
 class Raster {
@@ -432,21 +431,24 @@ class Raster {
     const float e0x = t.e[0].x(), e0y = t.e[0].y(), e0z = t.e[0].z();
     const float e1x = t.e[1].x(), e1y = t.e[1].y(), e1z = t.e[1].z();
     const float e2x = t.e[2].x(), e2y = t.e[2].y(), e2z = t.e[2].z();
-    const float nx = t.n.x(), ny = t.n.y(), nz = t.n.z(), td = t.d;
+    // The buffer holds inverse depth 1/z = m.u: products per pixel, no
+    // quotient, and 0 (no surface) is the farthest value.
+    const float nx = t.m.x(), ny = t.m.y(), nz = t.m.z();
     for (int y = ya; y <= yb; ++y) {
       const size_t row = size_t(y) * size_t(K_.width);
       const float* rx = pr_.ray_x.data() + row;
       const float* ry = pr_.ray_y.data() + row;
-      float* z = depth_.data.data() + row;
+      float* inv = depth_.data.data() + row;
       // Branch-free (rows are short: a triangle covers a few pixels, where
-      // mispredicted branches cost more than the tests). NaN rays fail every
-      // comparison; 0 in the buffer is no surface yet.
+      // mispredicted branches cost more than the tests): a pixel the
+      // triangle does not take keeps its value through max(). NaN rays fail
+      // every comparison; nearer than the buffer implies in front (> 0).
       for (int x = xa; x <= xb; ++x) {
         const float ux = rx[x], uy = ry[x];
-        const bool inside = (e0x * ux + e0y * uy + e0z >= 0) & (e1x * ux + e1y * uy + e1z >= 0) & (e2x * ux + e2y * uy + e2z >= 0);
-        const float d = td / (nx * ux + ny * uy + nz);
-        const bool nearer = inside & (d > 0) & ((d < z[x]) | (z[x] == 0));
-        z[x] = nearer ? d : z[x];
+        const float w = nx * ux + ny * uy + nz;
+        const bool take = (e0x * ux + e0y * uy + e0z >= 0) & (e1x * ux + e1y * uy + e1z >= 0) &
+                          (e2x * ux + e2y * uy + e2z >= 0) & (w > inv[x]);
+        inv[x] = std::max(inv[x], take ? w : 0.f);
       }
     }
   }
@@ -552,7 +554,7 @@ std::shared_ptr<const void> MeshRasterizer::rays_of(const Intrinsics& K, int thr
 ImageF MeshRasterizer::distance_image(const Intrinsics& K, const Eigen::Isometry3d& world_from_camera, Stats* stats) const {
   const Impl& m = *impl_;
   const auto pr = std::static_pointer_cast<const PixelRays>(rays_of(K, 1));
-  ImageF depth(K.width, K.height, 1, 0.f);  // 0: no surface (yet)
+  ImageF depth(K.width, K.height, 1, 0.f);  // inverse depth while drawing; 0: no surface (yet)
   Stats st;
   Raster raster(*pr, depth, st);
   const Eigen::Isometry3d camera_from_world = world_from_camera.inverse();
@@ -607,8 +609,8 @@ ImageF MeshRasterizer::distance_image(const Intrinsics& K, const Eigen::Isometry
     edge(1), edge(2);
     if (det < 0)
       for (auto& e : t.e) e = -e;
-    t.n = (b - a).cross(c - a);
-    t.d = float(t.n.cast<double>().dot(a.cast<double>()));
+    const Eigen::Vector3d n = (b - a).cross(c - a).cast<double>();
+    t.m = (n / n.dot(a.cast<double>())).cast<float>();
     // Under distortion a triangle's edges bow out of its vertices' box: by
     // a fraction of a pixel for small ones, which get that much margin; wide
     // ones are bounded by their edges' samples.
@@ -616,12 +618,12 @@ ImageF MeshRasterizer::distance_image(const Intrinsics& K, const Eigen::Isometry
     if (projected && !(distorted && extent > 16.f)) raster.pixels(t, lo, hi, Raster::kRound + raster.bow() * extent * extent);
     else raster.clipped(t, a, b, c);
   }
-  // Depth along the axis to distance along the ray, where pixels were drawn.
+  // Inverse depth to distance along the ray, where pixels were drawn.
   for (int y = raster.drawn_y0(); y <= raster.drawn_y1(); ++y) {
     const size_t row = size_t(y) * size_t(K.width);
     for (int x = raster.drawn_x0(); x <= raster.drawn_x1(); ++x) {
       float& d = depth.data[row + size_t(x)];
-      d = d > 0 ? d * pr->length[row + size_t(x)] : 0.f;
+      d = d > 0 ? pr->length[row + size_t(x)] / d : 0.f;
     }
   }
   if (stats) *stats = st;
