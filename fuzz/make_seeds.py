@@ -97,6 +97,44 @@ def ply_excerpt(path, row, col, rows, cols):
     return b"\r\n".join(out + verts + cells) + b"\r\n"
 
 
+def png_gray16(rows, interlace=0):
+    """A 16-bit greyscale PNG of `rows` (lists of ints), every row filtered Sub
+    (as the capture writes them), non-interlaced."""
+    chunk = lambda kind, body: struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body) & 0xFFFFFFFF)
+    raw = b""
+    for r in rows:
+        px = struct.pack(">%dH" % len(r), *r)
+        raw += b"\x01" + bytes((px[i] - (px[i - 2] if i >= 2 else 0)) & 0xFF for i in range(len(px)))
+    head = struct.pack(">IIBBBBB", len(rows[0]), len(rows), 16, 0, 0, 0, interlace)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", head) + chunk(b"IDAT", zlib.compress(raw, 9)) + chunk(b"IEND", b"")
+
+
+def png_crop16(path, x0, y0, w, h):
+    """A w x h window of a non-interlaced 16-bit greyscale PNG (any filters)."""
+    data = read(path)
+    pos, idat, width = 8, b"", 0
+    while pos < len(data):
+        n, = struct.unpack_from(">I", data, pos)
+        kind = data[pos + 4:pos + 8]
+        if kind == b"IHDR":
+            width, = struct.unpack_from(">I", data, pos + 8)
+        if kind == b"IDAT":
+            idat += data[pos + 8:pos + 8 + n]
+        pos += 12 + n
+    raw, stride, prev, rows = zlib.decompress(idat), 2 * width, None, []
+    for y in range(y0 + h):
+        f, line = raw[y * (stride + 1)], bytearray(raw[y * (stride + 1) + 1:(y + 1) * (stride + 1)])
+        up = prev or bytearray(stride)
+        for i in range(stride):
+            a, b, c = (line[i - 2] if i >= 2 else 0), up[i], (up[i - 2] if i >= 2 else 0)
+            pred = (0, a, b, (a + b) // 2, min((a, b, c), key=lambda v: (abs(a + b - c - v), (a, b, c).index(v))))[f]
+            line[i] = (line[i] + pred) & 0xFF
+        prev = line
+        if y >= y0:
+            rows.append([struct.unpack_from(">H", line, 2 * x)[0] for x in range(x0, x0 + w)])
+    return rows
+
+
 data = os.environ.get("S2R_DATA", "../shared/data")
 # Sessions: imports of the real data and a capture through the drivers.
 for name in ("bear", "bunny", "dino"):
@@ -117,6 +155,10 @@ tet = struct.pack("<12f", 0, 0, 0, 0.01, 0, 0, 0, 0.01, 0, 0, 0, 0.01) + b"".joi
     struct.pack("<B3i", 3, *f) for f in ((0, 2, 1), (0, 1, 3), (0, 3, 2), (1, 2, 3)))
 put("ply", "tetrahedron_binary", b"ply\nformat binary_little_endian 1.0\nelement vertex 4\nproperty float x\n"
     b"property float y\nproperty float z\nelement face 4\nproperty list uchar int vertex_indices\nend_header\n" + tet)
+# Depth PNGs (16-bit greyscale): a window of the real bear's depth frame, and
+# a frame with no valid sample.
+put("depth_png", "bear_window", png_gray16(png_crop16(f"{data}/realsense_d435_bear/data1/depth_5.png", 300, 220, 12, 9)))
+put("depth_png", "all_zero", png_gray16([[0] * 5] * 3))
 # Models: a few facets of the rig's bunny.
 put("model", "rig_bunny_small", small_model("out/demo/model", 12))
 # Serial: what a GRBL board says during a move (banner, ok, status, faults).
