@@ -10,6 +10,7 @@
 #include <thread>
 
 #include <embree3/rtcore.h>
+#include <emmintrin.h>
 
 #include "core/parallel.h"
 
@@ -434,21 +435,44 @@ class Raster {
     // The buffer holds inverse depth 1/z = m.u: products per pixel, no
     // quotient, and 0 (no surface) is the farthest value.
     const float nx = t.m.x(), ny = t.m.y(), nz = t.m.z();
+    // Four pixels of a row at a time, branch-free (rows are short: a
+    // triangle covers a few pixels, where mispredicted branches cost more
+    // than the tests): a pixel the triangle does not take keeps its value
+    // through max(). NaN rays fail every comparison; nearer than the buffer
+    // implies in front (> 0). Lanes past the row's end are masked off: they
+    // read the next row's rays and values and write back what they read
+    // (one thread draws an image), except at the image's very end.
+    const __m128 E0x = _mm_set1_ps(e0x), E0y = _mm_set1_ps(e0y), E0z = _mm_set1_ps(e0z);
+    const __m128 E1x = _mm_set1_ps(e1x), E1y = _mm_set1_ps(e1y), E1z = _mm_set1_ps(e1z);
+    const __m128 E2x = _mm_set1_ps(e2x), E2y = _mm_set1_ps(e2y), E2z = _mm_set1_ps(e2z);
+    const __m128 Nx = _mm_set1_ps(nx), Ny = _mm_set1_ps(ny), Nz = _mm_set1_ps(nz), zero = _mm_setzero_ps();
+    const __m128i lane = _mm_setr_epi32(0, 1, 2, 3);
+    const size_t end = depth_.data.size();
     for (int y = ya; y <= yb; ++y) {
       const size_t row = size_t(y) * size_t(K_.width);
       const float* rx = pr_.ray_x.data() + row;
       const float* ry = pr_.ray_y.data() + row;
       float* inv = depth_.data.data() + row;
-      // Branch-free (rows are short: a triangle covers a few pixels, where
-      // mispredicted branches cost more than the tests): a pixel the
-      // triangle does not take keeps its value through max(). NaN rays fail
-      // every comparison; nearer than the buffer implies in front (> 0).
-      for (int x = xa; x <= xb; ++x) {
-        const float ux = rx[x], uy = ry[x];
-        const float w = nx * ux + ny * uy + nz;
-        const bool take = (e0x * ux + e0y * uy + e0z >= 0) & (e1x * ux + e1y * uy + e1z >= 0) &
-                          (e2x * ux + e2y * uy + e2z >= 0) & (w > inv[x]);
-        inv[x] = std::max(inv[x], take ? w : 0.f);
+      for (int x = xa; x <= xb; x += 4) {
+        if (row + size_t(x) + 4 > end) {  // the image's last pixels, one at a time
+          for (; x <= xb; ++x) {
+            const float ux = rx[x], uy = ry[x], w = nx * ux + ny * uy + nz;
+            if ((e0x * ux + e0y * uy + e0z >= 0) && (e1x * ux + e1y * uy + e1z >= 0) && (e2x * ux + e2y * uy + e2z >= 0) &&
+                w > inv[x])
+              inv[x] = w;
+          }
+          break;
+        }
+        const __m128 ux = _mm_loadu_ps(rx + x), uy = _mm_loadu_ps(ry + x), z = _mm_loadu_ps(inv + x);
+        const __m128 w = _mm_add_ps(_mm_add_ps(_mm_mul_ps(Nx, ux), _mm_mul_ps(Ny, uy)), Nz);
+        const __m128 a = _mm_add_ps(_mm_add_ps(_mm_mul_ps(E0x, ux), _mm_mul_ps(E0y, uy)), E0z);
+        const __m128 b = _mm_add_ps(_mm_add_ps(_mm_mul_ps(E1x, ux), _mm_mul_ps(E1y, uy)), E1z);
+        const __m128 c = _mm_add_ps(_mm_add_ps(_mm_mul_ps(E2x, ux), _mm_mul_ps(E2y, uy)), E2z);
+        const __m128 in_row = _mm_castsi128_ps(_mm_cmplt_epi32(lane, _mm_set1_epi32(xb - x + 1)));
+        const __m128 take = _mm_and_ps(_mm_and_ps(_mm_and_ps(_mm_cmpge_ps(a, zero), _mm_cmpge_ps(b, zero)),
+                                                  _mm_and_ps(_mm_cmpge_ps(c, zero), _mm_cmpgt_ps(w, z))),
+                                       in_row);
+        _mm_storeu_ps(inv + x, _mm_max_ps(z, _mm_and_ps(take, w)));
       }
     }
   }
