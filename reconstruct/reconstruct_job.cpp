@@ -103,7 +103,9 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   static const std::set<std::string> modes = {"auto", "depth", "hull", "both"};
   if (!modes.count(job.geometry)) return fail("--geometry must be auto, depth, hull or both (got '" + job.geometry + "')");
 
-  auto session = load_session(job.session);
+  // Image headers are not probed here: the frames the job uses are decoded
+  // below and their sizes checked against the intrinsics then.
+  auto session = load_session(job.session, {.check_images = false});
   if (!session) return std::unexpected(session.error());
   const Session& s = *session;
   auto poses = resolve_frame_poses(s, job.poses, job.calibration);
@@ -172,15 +174,23 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
       if (!K) return fail("frame " + std::to_string(i) + ": no colour intrinsics (session or --calibration)");
       v.K = *K;
       v.world_from_camera = *poses->world_from_camera[i];
+      auto size_differs = [&](const auto& img, const Intrinsics& K, const std::string& file) {
+        return img.width != K.width || img.height != K.height
+                   ? fail(fmt::format("frame {}: '{}' is {}x{} but the intrinsics say {}x{}", i, file, img.width, img.height,
+                                      K.width, K.height))
+                   : Status{};
+      };
       if (want_color) {
         Result<ImageU8>& c = *colors[i];
         if (!c) return std::unexpected(c.error());
+        if (auto st = size_differs(*c, v.K, f.color); !st) return std::unexpected(st.error());
         v.color = std::move(*c);
       }
       if (!f.depth.empty()) {
         if (!depth_K) return fail("session has depth frames but no depth intrinsics");
         Result<ImageU16>& d = *depths[i];
         if (!d) return std::unexpected(d.error());
+        if (auto st = size_differs(*d, *depth_K, f.depth); !st) return std::unexpected(st.error());
         v.depth = std::move(*d);
         if (cal && cal->axis) {
           if (const size_t off = mask_off_table(v.depth, unit, *depth_K, color_from_depth, *cal->axis))

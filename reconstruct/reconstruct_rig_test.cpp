@@ -208,4 +208,23 @@ TEST(ReconstructRig, StiffCases) {
   job.holdout.clear();
   job.geometry = "laser";
   EXPECT_FALSE(run_reconstruct_job(job));
+
+  // A depth frame of another size than the depth intrinsics (the session's
+  // image headers are not probed before the frames are decoded): an error
+  // naming the frame and both sizes.
+  const fs::path small = scratch() / "blob_small_depth";
+  fs::remove_all(small);
+  fs::copy(base, small, fs::copy_options::recursive);
+  {
+    auto s = load_session(small);
+    ASSERT_TRUE(s);
+    ASSERT_TRUE(write_image(small / s->frames[5].depth, ImageU16(100, 80, 1, 1000)));
+  }
+  job.session = small;
+  job.geometry = "depth";
+  job.out = scratch() / "blob_small_model";
+  bad = run_reconstruct_job(job);
+  ASSERT_FALSE(bad);
+  EXPECT_NE(bad.error().message.find("frame 5"), std::string::npos) << bad.error().message;
+  EXPECT_NE(bad.error().message.find("100x80"), std::string::npos) << bad.error().message;
 }
