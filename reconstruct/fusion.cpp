@@ -107,8 +107,20 @@ struct LeafReader {
   }
 };
 
+// std::lround inline (half away from zero), for |v| < 2^31: the
+// truncation and the remainder v - t are exact there.
+int round_half_away(double v) {
+  const int t = int(v);
+  const double f = v - double(t);
+  return t + int(f >= 0.5) - int(f <= -0.5);
+}
+
 Coord coord_of(const Eigen::Vector3d& p, double voxel) {
-  return Coord(int(std::lround(p.x() / voxel)), int(std::lround(p.y() / voxel)), int(std::lround(p.z() / voxel)));
+  const Eigen::Vector3d q = p / voxel;
+  // Beyond +-2^30 voxels (kilometres at any voxel size) lround's own rule.
+  if (!(q.cwiseAbs().maxCoeff() < double(1 << 30)))
+    return Coord(int(std::lround(q.x())), int(std::lround(q.y())), int(std::lround(q.z())));
+  return Coord(round_half_away(q.x()), round_half_away(q.y()), round_half_away(q.z()));
 }
 
 }  // namespace
@@ -222,20 +234,29 @@ void SparseVolume::integrate(const std::vector<DepthObservation>& views, int thr
       Coord last_lo(std::numeric_limits<int>::max()), last_hi = last_lo;
       const Intrinsics& K = v.intrinsics;
       const bool pinhole = !K.has_distortion();
-      for (int y = 0; y < depth.height; y += 2)
+      // Through a pinhole, unproject's own arithmetic inline, its per-column
+      // factors made once; the pose's product written out in Eigen's order.
+      std::vector<double> column(size_t(std::max(depth.width, 0)));
+      for (int x = 0; x < depth.width; x += 2) column[size_t(x)] = (x - K.cx) / K.fx;
+      const Eigen::Matrix3d R = v.world_from_camera.linear();
+      const Eigen::Vector3d T = v.world_from_camera.translation();
+      for (int y = 0; y < depth.height; y += 2) {
+        const double row = (y - K.cy) / K.fy;
         for (int x = 0; x < depth.width; x += 2) {
           const uint16_t d = depth.data[size_t(y) * depth.width + x];
           if (d == 0) continue;
-          // Through a pinhole, unproject's own arithmetic inline.
           Eigen::Vector3d pc;
           if (pinhole) {
-            pc = Eigen::Vector3d((x - K.cx) / K.fx, (y - K.cy) / K.fy, 1.0) * (d * v.unit_m);
+            const double z = d * v.unit_m;
+            pc = Eigen::Vector3d(column[size_t(x)] * z, row * z, 1.0 * z);
           } else {
             auto u = K.unproject({double(x), double(y)}, d * v.unit_m);
             if (!u) continue;
             pc = *u;
           }
-          const Eigen::Vector3d pw = v.world_from_camera * pc;
+          const Eigen::Vector3d pw(R(0, 0) * pc.x() + R(0, 1) * pc.y() + R(0, 2) * pc.z() + T.x(),
+                                   R(1, 0) * pc.x() + R(1, 1) * pc.y() + R(1, 2) * pc.z() + T.y(),
+                                   R(2, 0) * pc.x() + R(2, 1) * pc.y() + R(2, 2) * pc.z() + T.z());
           if (!m.in_crop(pw)) {
             ++t.outside;
             continue;
@@ -250,6 +271,7 @@ void SparseVolume::integrate(const std::vector<DepthObservation>& views, int thr
             for (int ly = lo.y(); ly <= hi.y(); ly += kLeaf)
               for (int lz = lo.z(); lz <= hi.z(); lz += kLeaf) acc.touchLeaf(Coord(lx, ly, lz));
         }
+      }
       for (auto leaf = mask.cbeginLeaf(); leaf; ++leaf) t.leaves.push_back(leaf->origin());
     });
   });
