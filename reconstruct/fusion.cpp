@@ -577,6 +577,10 @@ std::vector<EvidenceVoxel> SparseVolume::evidence(double reliability_sigma_m) co
       for (auto it = lm.leaf(li).cbeginValueOn(); it; ++it) {
         const openvdb::Vec3s v = *it;
         if (v[1] <= 0) continue;
+        // Every test below needs |sdf| <= 3 w (a neighbour across the surface
+        // within 2 w or 3 w, or |sdf| < w/2): free space and the band's far
+        // side are passed over without reading a neighbour.
+        if (std::abs(v[0]) > 3 * m.voxel) continue;
         const Coord c = it.getCoord();
         bool surface = false;
         Eigen::Vector3f grad = Eigen::Vector3f::Zero();
@@ -714,6 +718,9 @@ std::vector<SurfaceCrossing> SparseVolume::crossings(double max_jump_voxels) con
       for (auto it = lm.leaf(li).cbeginValueOn(); it; ++it) {
         const openvdb::Vec3s v = *it;
         if (!(v[1] > 0) || !std::isfinite(v[0])) continue;
+        // Across a crossing the two distances' magnitudes add up to at most
+        // the jump: a sample further than that from the surface has none.
+        if (std::abs(v[0]) > max_jump_voxels * m.voxel) continue;
         const Coord c = it.getCoord();
         const Eigen::Vector3i p(c.x(), c.y(), c.z());
         for (int a = 0; a < 3; ++a)
