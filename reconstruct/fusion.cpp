@@ -292,7 +292,33 @@ void SparseVolume::integrate(const std::vector<DepthObservation>& views, int thr
       for (size_t vi = 0; vi < views.size(); ++vi) on_view();
     return;
   }
-  std::stable_sort(pairs.begin(), pairs.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+  // Leaves along a Morton curve: consecutive leaves are neighbours in space,
+  // so they project near each other in every view and the depth pixels they
+  // read stay in cache. (Each leaf's updates are its own: the order of leaves
+  // changes no value.)
+  auto morton = [](const Coord& c) {
+    auto spread = [](int v) {  // 21 bits (leaf units, offset) to every third of 63
+      uint64_t x = uint64_t(uint32_t(v / kLeaf + (1 << 20))) & 0x1fffff;
+      x = (x | x << 32) & 0x1f00000000ffffULL, x = (x | x << 16) & 0x1f0000ff0000ffULL;
+      x = (x | x << 8) & 0x100f00f00f00f00fULL, x = (x | x << 4) & 0x10c30c30c30c30c3ULL;
+      return (x | x << 2) & 0x1249249249249249ULL;
+    };
+    return spread(c.x()) | spread(c.y()) << 1 | spread(c.z()) << 2;
+  };
+  std::vector<std::pair<uint64_t, size_t>> keyed(pairs.size());
+  for (size_t i = 0; i < pairs.size(); ++i) keyed[i] = {morton(pairs[i].first), i};
+  // Ties: one leaf (beyond 2^20 leaves from the origin two leaves may share
+  // a key: then by coordinate) in view order (i ascends with it).
+  std::sort(keyed.begin(), keyed.end(), [&](const auto& a, const auto& b) {
+    if (a.first != b.first) return a.first < b.first;
+    if (pairs[a.second].first != pairs[b.second].first) return pairs[a.second].first < pairs[b.second].first;
+    return a.second < b.second;
+  });
+  {
+    std::vector<std::pair<Coord, uint32_t>> sorted(pairs.size());
+    for (size_t i = 0; i < keyed.size(); ++i) sorted[i] = pairs[keyed[i].second];
+    pairs.swap(sorted);
+  }
   std::vector<size_t> groups;  // start of each leaf's run in `pairs`
   for (size_t i = 0; i < pairs.size(); ++i)
     if (i == 0 || pairs[i].first != pairs[i - 1].first) groups.push_back(i);
