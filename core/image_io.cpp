@@ -104,6 +104,12 @@ std::optional<Result<ImageU16>> read_png_gray16(const fs::path& path) {
   int depth = 0, colour = 0;
   // 2^14 a side: a depth frame 16 times a 4K sensor's pixel count.
   png_set_user_limits(r.png, 1u << 14, 1u << 14);
+  // Every chunk's CRC-32 is still checked (a changed byte of the pixel data
+  // is an error); the zlib stream's own Adler-32 over the inflated rows adds
+  // nothing to that and took a fifth of the decoding time.
+#ifdef PNG_IGNORE_ADLER32
+  png_set_option(r.png, PNG_IGNORE_ADLER32, PNG_OPTION_ON);
+#endif
   if (!png_header(r, width, height, depth, colour)) return corrupt(r.message);
   if (depth != 16 || colour != PNG_COLOR_TYPE_GRAY) return std::nullopt;
   ImageU16 img(int(width), int(height), 1);
