@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <cstring>
+#include <future>
 
 #include "core/atomic_file.h"
 #include "core/json_fields.h"
@@ -89,11 +90,17 @@ Status save_model(const fs::path& dir, const Model& m) {
   if (m.patch_mesh) doc["patch_mesh"] = *m.patch_mesh;
   if (m.surface_mesh) doc["surface_mesh"] = *m.surface_mesh;
   if (m.environment) doc["environment"] = *m.environment;
-  // Payloads first, header last: a model.json always describes complete payloads.
-  if (auto st = write_file_atomic(dir / "facets.bin", pack(m.facets)); !st) return st;
-  if (auto st = write_file_atomic(dir / "facet_cameras.bin", pack(m.facet_cameras)); !st) return st;
-  if (!m.octree.empty())
-    if (auto st = write_file_atomic(dir / "octree.bin", pack(m.octree)); !st) return st;
+  // Payloads first, header last: a model.json always describes complete
+  // payloads. The payloads are written at once (their flushes to disk
+  // overlap); the first failure is reported.
+  std::future<Status> facets = std::async(std::launch::async, [&] { return write_file_atomic(dir / "facets.bin", pack(m.facets)); });
+  std::future<Status> octree = std::async(std::launch::async, [&]() -> Status {
+    return m.octree.empty() ? Status{} : write_file_atomic(dir / "octree.bin", pack(m.octree));
+  });
+  const Status cameras = write_file_atomic(dir / "facet_cameras.bin", pack(m.facet_cameras));
+  const Status written[] = {facets.get(), cameras, octree.get()};
+  for (const Status& st : written)
+    if (!st) return st;
   return write_file_atomic(dir / "model.json", dump_json(doc));
 }
 
