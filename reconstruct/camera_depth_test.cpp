@@ -270,4 +270,10 @@ TEST(MeshRasterizer, VisibilityGridDrawsTheWholeImagesRays) {
   EXPECT_EQ(visibility_stride(0.015, 0.45, camera(false)), 2);
   EXPECT_EQ(visibility_stride(0.006, 0.45, camera(false)), 1);
   EXPECT_EQ(visibility_stride(0.006, std::numeric_limits<double>::quiet_NaN(), camera(false)), 1);
+  // A facet far larger than the image's pixels: the stride stops at the image's side.
+  Intrinsics tiny = camera(false);
+  tiny.width = 12, tiny.height = 9;
+  EXPECT_EQ(visibility_stride(10.0, 0.45, tiny), 9);
+  EXPECT_EQ(visibility_grid(tiny, 9).width, 1);  // pixel 4 only (the next, 13, is past the edge)
+  EXPECT_EQ(visibility_grid(tiny, 9).height, 1);
 }

@@ -36,7 +36,9 @@ Intrinsics visibility_grid(const Intrinsics& K, int stride) {
 int visibility_stride(double w, double far_m, const Intrinsics& K) {
   const double pixel_m = far_m / std::min(K.fx, K.fy);  // a pixel's width at far_m
   if (!(w > 0) || !(pixel_m > 0) || !std::isfinite(pixel_m)) return 1;
-  return int(std::clamp(std::floor(w / (3 * pixel_m)), 1.0, 64.0));
+  // At most 64, and at most the image's smaller side (the grid keeps a pixel each way).
+  const double widest = std::max(1, std::min({64, K.width, K.height}));
+  return int(std::clamp(std::floor(w / (3 * pixel_m)), 1.0, widest));
 }
 
 CameraSpacing camera_spacing(const std::vector<Eigen::Isometry3d>& cams, const Eigen::Vector3d& centre) {
@@ -156,6 +158,7 @@ FacetStats build_facets(const std::vector<EvidenceVoxel>& ev, const std::vector<
     // Grid point (gx, gy) is D's pixel (gx, gy), or (k gx + off, k gy + off) in a whole image.
     const bool whole = D && D->width == K.width && D->height == K.height;
     if (D && !whole && (D->width != G.width || D->height != G.height)) D = nullptr;  // no usable depth: nothing occludes
+    if (G.width < 1 || G.height < 1) D = nullptr;
     const int step = whole ? k : 1, start = whole ? off : 0;
     for (size_t i = 0; i < drafts.size(); ++i) {
       const Draft& d = drafts[i];
