@@ -305,20 +305,12 @@ void SparseVolume::integrate(const std::vector<DepthObservation>& views, int thr
     };
     return spread(c.x()) | spread(c.y()) << 1 | spread(c.z()) << 2;
   };
-  std::vector<std::pair<uint64_t, size_t>> keyed(pairs.size());
-  for (size_t i = 0; i < pairs.size(); ++i) keyed[i] = {morton(pairs[i].first), i};
-  // Ties: one leaf (beyond 2^20 leaves from the origin two leaves may share
-  // a key: then by coordinate) in view order (i ascends with it).
-  std::sort(keyed.begin(), keyed.end(), [&](const auto& a, const auto& b) {
-    if (a.first != b.first) return a.first < b.first;
-    if (pairs[a.second].first != pairs[b.second].first) return pairs[a.second].first < pairs[b.second].first;
-    return a.second < b.second;
+  // Beyond 2^20 leaves from the origin two leaves may share a key: then by
+  // coordinate. Stable: a leaf's views stay in view order.
+  std::stable_sort(pairs.begin(), pairs.end(), [&](const auto& a, const auto& b) {
+    const uint64_t ka = morton(a.first), kb = morton(b.first);
+    return ka != kb ? ka < kb : a.first < b.first;
   });
-  {
-    std::vector<std::pair<Coord, uint32_t>> sorted(pairs.size());
-    for (size_t i = 0; i < keyed.size(); ++i) sorted[i] = pairs[keyed[i].second];
-    pairs.swap(sorted);
-  }
   std::vector<size_t> groups;  // start of each leaf's run in `pairs`
   for (size_t i = 0; i < pairs.size(); ++i)
     if (i == 0 || pairs[i].first != pairs[i - 1].first) groups.push_back(i);
