@@ -193,17 +193,26 @@ BENCHMARK(BM_CameraDepth)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
 // 24 views, depth geometry, uniform facets, no textures) at w = arg / 10 mm,
 // in process: run under perf to see where a build's time goes. The session is
 // made once, in a temporary folder. Its peer is Open3D, in `s2r bench`.
+// The folder goes when the process ends.
+struct BenchDir {
+  std::filesystem::path path = std::filesystem::temp_directory_path() / ("s2r_microbench_" + std::to_string(::getpid()));
+  ~BenchDir() {
+    std::error_code ec;
+    std::filesystem::remove_all(path, ec);
+  }
+};
+
 void BM_ReconstructJob(benchmark::State& state) {
+  static const BenchDir dir;
   static const std::filesystem::path session = [] {
-    const auto dir = std::filesystem::temp_directory_path() / ("s2r_microbench_" + std::to_string(::getpid()));
     SynthOptions so;
     so.views = 24;
     so.seed = 3;
-    if (!synth_session(so, dir / "session")) return std::filesystem::path();
+    if (!synth_session(so, dir.path / "session")) return std::filesystem::path();
     // Without the true mesh the job skips its check against the truth, which
     // the build's seconds leave out anyway: the profile shows the build alone.
-    std::filesystem::remove(dir / "session" / "ground_truth" / "geometry.ply");
-    return dir / "session";
+    std::filesystem::remove(dir.path / "session" / "ground_truth" / "geometry.ply");
+    return dir.path / "session";
   }();
   if (session.empty()) {
     state.SkipWithError("cannot make the rig session");
