@@ -233,7 +233,11 @@ void BM_ReconstructJob(benchmark::State& state) {
       return;
     }
     state.SetIterationTime(r->seconds);
+    // Each step's seconds too, averaged over the iterations.
+    for (const auto& [key, value] : r->counts)
+      if (key.starts_with("seconds_")) state.counters[key.substr(8)] += value;
   }
+  for (auto& [key, counter] : state.counters) counter.flags = benchmark::Counter::kAvgIterations;
 }
 BENCHMARK(BM_ReconstructJob)->Arg(15)->Arg(30)->Arg(60)->UseManualTime()->Unit(benchmark::kMillisecond);
 
