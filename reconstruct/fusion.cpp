@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <atomic>
 #include <cmath>
 #include <functional>
@@ -17,6 +18,8 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
+
+#include <emmintrin.h>
 
 namespace s2r {
 
@@ -362,10 +365,9 @@ void SparseVolume::integrate(const std::vector<DepthObservation>& views, int thr
           const ImageU16& depth = *v.depth;
           const Intrinsics& K = v.intrinsics;
           const Eigen::Vector3f base = (c.cam_from_world * lo).cast<float>();
-          // A voxel's update from its camera depth z and measured depth d.
-          auto update = [&](openvdb::Vec3s& vv, float z, uint16_t d) {
-            const float sdf = float(d) * c.unit - z;
-            if (sdf < -tau) return;  // far behind the surface: unknown
+          // A voxel's update from its signed distance sdf = d - z (d the
+          // measured depth, z the voxel's), not far behind the surface.
+          auto update = [&](openvdb::Vec3s& vv, float sdf) {
             const float s = std::clamp(sdf, -behind, tau);
             const float n = vv[1] + 1.f;
             const float delta = s - vv[0];
@@ -380,24 +382,52 @@ void SparseVolume::integrate(const std::vector<DepthObservation>& views, int thr
               const Eigen::Vector3f row = base + c.step.col(0) * float(i) + c.step.col(1) * float(j);
               openvdb::Vec3s* line = val + (i * D + j) * D;
               if (c.pinhole) {
-                // A row of the leaf projected at once (branch-free, so the
-                // compiler can vectorize it), then its pixels read.
-                std::array<float, D> zs{};
-                std::array<int, D> at{};
-                for (int k = 0; k < D; ++k) {
-                  const float x = row.x() + c.step(0, 2) * float(k), y = row.y() + c.step(1, 2) * float(k);
-                  const float z = row.z() + c.step(2, 2) * float(k);
-                  const float inv = 1.f / z;
+                // A row of the leaf projected four voxels at a time (SSE2,
+                // the scalar arithmetic's operations in its order), then
+                // only the voxels that land on the image read their pixels
+                // and only those with a measured depth not far behind them
+                // are updated: the branches follow the set bits, not each
+                // voxel's outcome.
+                alignas(16) int ix[D], iy[D];
+                alignas(16) float zs[D], sdf[D];
+                alignas(16) float measured[D] = {};
+                int on_image = 0;
+                for (int h = 0; h < D; h += 4) {
+                  const __m128 k = _mm_setr_ps(float(h), float(h + 1), float(h + 2), float(h + 3));
+                  const __m128 x = _mm_add_ps(_mm_set1_ps(row.x()), _mm_mul_ps(_mm_set1_ps(c.step(0, 2)), k));
+                  const __m128 y = _mm_add_ps(_mm_set1_ps(row.y()), _mm_mul_ps(_mm_set1_ps(c.step(1, 2)), k));
+                  const __m128 z = _mm_add_ps(_mm_set1_ps(row.z()), _mm_mul_ps(_mm_set1_ps(c.step(2, 2)), k));
+                  const __m128 inv = _mm_div_ps(_mm_set1_ps(1.f), z);
                   // Nearest pixel (+0.5 then truncated); the comparisons also refuse NaN.
-                  const float px = c.fx * (x * inv) + c.cx + 0.5f, py = c.fy * (y * inv) + c.cy + 0.5f;
-                  const bool ok = z > 0 && px >= 0 && py >= 0 && px < W && py < H;
-                  at[size_t(k)] = ok ? int(py) * depth.width + int(px) : -1;
-                  zs[size_t(k)] = z;
+                  const __m128 half = _mm_set1_ps(0.5f), zero = _mm_setzero_ps();
+                  const __m128 px = _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_set1_ps(c.fx), _mm_mul_ps(x, inv)), _mm_set1_ps(c.cx)), half);
+                  const __m128 py = _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_set1_ps(c.fy), _mm_mul_ps(y, inv)), _mm_set1_ps(c.cy)), half);
+                  const __m128 ok = _mm_and_ps(_mm_and_ps(_mm_cmpgt_ps(z, zero), _mm_and_ps(_mm_cmpge_ps(px, zero), _mm_cmpge_ps(py, zero))),
+                                               _mm_and_ps(_mm_cmplt_ps(px, _mm_set1_ps(W)), _mm_cmplt_ps(py, _mm_set1_ps(H))));
+                  on_image |= _mm_movemask_ps(ok) << h;
+                  _mm_store_si128(reinterpret_cast<__m128i*>(ix + h), _mm_cvttps_epi32(px));
+                  _mm_store_si128(reinterpret_cast<__m128i*>(iy + h), _mm_cvttps_epi32(py));
+                  _mm_store_ps(zs + h, z);
                 }
-                for (int k = 0; k < D; ++k) {
-                  if (at[size_t(k)] < 0) continue;
-                  if (!inside && !m.in_crop(m.centre(o.offsetBy(i, j, k)))) continue;
-                  if (const uint16_t d = depth.data[size_t(at[size_t(k)])]) update(line[k], zs[size_t(k)], d);
+                if (!inside)
+                  for (int k = 0; k < D; ++k)
+                    if (!m.in_crop(m.centre(o.offsetBy(i, j, k)))) on_image &= ~(1 << k);
+                if (!on_image) continue;
+                for (int b = on_image; b; b &= b - 1) {
+                  const int k = std::countr_zero(unsigned(b));
+                  measured[k] = float(depth.data[size_t(iy[k]) * size_t(depth.width) + size_t(ix[k])]);
+                }
+                int take = 0;
+                for (int h = 0; h < D; h += 4) {
+                  const __m128 d = _mm_load_ps(measured + h);
+                  const __m128 f = _mm_sub_ps(_mm_mul_ps(d, _mm_set1_ps(c.unit)), _mm_load_ps(zs + h));
+                  _mm_store_ps(sdf + h, f);
+                  // A measured depth (not 0), and the voxel not far behind it.
+                  take |= _mm_movemask_ps(_mm_and_ps(_mm_cmpneq_ps(d, _mm_setzero_ps()), _mm_cmpge_ps(f, _mm_set1_ps(-tau)))) << h;
+                }
+                for (int b = take; b; b &= b - 1) {
+                  const int k = std::countr_zero(unsigned(b));
+                  update(line[k], sdf[k]);
                 }
                 continue;
               }
@@ -409,7 +439,10 @@ void SparseVolume::integrate(const std::vector<DepthObservation>& views, int thr
                 if (!pp) continue;
                 const float px = float(pp->x()) + 0.5f, py = float(pp->y()) + 0.5f;
                 if (!(px >= 0 && py >= 0 && px < W && py < H)) continue;
-                if (const uint16_t d = depth.data[size_t(int(py)) * depth.width + size_t(int(px))]) update(line[k], pc.z(), d);
+                if (const uint16_t d = depth.data[size_t(int(py)) * depth.width + size_t(int(px))]) {
+                  const float f = float(d) * c.unit - pc.z();
+                  if (!(f < -tau)) update(line[k], f);  // far behind the surface: unknown
+                }
               }
             }
         }
