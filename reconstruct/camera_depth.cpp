@@ -357,6 +357,30 @@ class Raster {
     }
     return {float(K_.fx) * x + float(K_.cx), float(K_.fy) * y + float(K_.cy)};
   }
+  // Four camera-frame points' pixels (as pixel() computes them, in its
+  // order of operations, four lanes at a time), NaN where a point does not
+  // project (as projectable() tells).
+  void pixels4(__m128 x, __m128 y, __m128 z, __m128& px, __m128& py) const {
+    const __m128 xn = _mm_div_ps(x, z), yn = _mm_div_ps(y, z);
+    const __m128 r2 = _mm_add_ps(_mm_mul_ps(xn, xn), _mm_mul_ps(yn, yn));
+    const __m128 ok = _mm_and_ps(_mm_cmpgt_ps(z, _mm_set1_ps(kNear)), _mm_cmple_ps(r2, _mm_set1_ps(pr_.valid_r2)));
+    __m128 u = xn, v = yn;
+    if (distorted_) {
+      auto c = [](float f) { return _mm_set1_ps(f); };
+      const __m128 radial = _mm_add_ps(
+          c(1.f), _mm_mul_ps(r2, _mm_add_ps(c(dist_[0]), _mm_mul_ps(r2, _mm_add_ps(c(dist_[1]), _mm_mul_ps(r2, c(dist_[4])))))));
+      const __m128 two = c(2.f);
+      u = _mm_add_ps(_mm_add_ps(_mm_mul_ps(xn, radial), _mm_mul_ps(_mm_mul_ps(c(2 * dist_[2]), xn), yn)),
+                     _mm_mul_ps(c(dist_[3]), _mm_add_ps(r2, _mm_mul_ps(_mm_mul_ps(two, xn), xn))));
+      v = _mm_add_ps(_mm_add_ps(_mm_mul_ps(yn, radial), _mm_mul_ps(c(dist_[2]), _mm_add_ps(r2, _mm_mul_ps(_mm_mul_ps(two, yn), yn)))),
+                     _mm_mul_ps(_mm_mul_ps(c(2 * dist_[3]), xn), yn));
+    }
+    const __m128 nan = _mm_set1_ps(std::numeric_limits<float>::quiet_NaN());
+    px = _mm_add_ps(_mm_mul_ps(_mm_set1_ps(float(K_.fx)), u), _mm_set1_ps(float(K_.cx)));
+    py = _mm_add_ps(_mm_mul_ps(_mm_set1_ps(float(K_.fy)), v), _mm_set1_ps(float(K_.cy)));
+    px = _mm_or_ps(_mm_and_ps(ok, px), _mm_andnot_ps(ok, nan));
+    py = _mm_or_ps(_mm_and_ps(ok, py), _mm_andnot_ps(ok, nan));
+  }
   // Whether a camera-frame point projects within the lens model's valid field.
   bool projectable(const Eigen::Vector3f& p) const {
     if (!(p.z() > kNear)) return false;
@@ -418,8 +442,12 @@ class Raster {
       ++st_.triangles_culled;
       return;
     }
-    const int xa = int(std::ceil(std::max(lo.x() - pad, 0.f))), xb = int(std::floor(std::min(hi.x() + pad, W - 1)));
-    const int ya = int(std::ceil(std::max(lo.y() - pad, 0.f))), yb = int(std::floor(std::min(hi.y() + pad, H - 1)));
+    // Ceiling and floor through truncation (SSE2 has no rounding
+    // instruction; the values lie within [-1, W] and [-1, H]).
+    auto ceil_of = [](float v) { const int i = int(v); return i + (float(i) < v); };
+    auto floor_of = [](float v) { const int i = int(v); return i - (float(i) > v); };
+    const int xa = ceil_of(std::max(lo.x() - pad, 0.f)), xb = floor_of(std::min(hi.x() + pad, W - 1));
+    const int ya = ceil_of(std::max(lo.y() - pad, 0.f)), yb = floor_of(std::min(hi.y() + pad, H - 1));
     if (xa > xb || ya > yb) {
       ++st_.triangles_culled;
       return;
@@ -510,6 +538,18 @@ struct MeshRasterizer::Impl {
   std::vector<Eigen::Vector3f> vertices;
   std::vector<Eigen::Vector3i> faces;
   Faces faces_seen = Faces::kBoth;
+  // Runs of kCluster consecutive faces (neighbours on the Morton curve) with
+  // a sphere holding their vertices and a cone holding their unit normals
+  // ((b - a) x (c - a), the inward winding's): a camera that sees every
+  // normal of a run turned away from it skips the run's faces and their
+  // vertices (Faces::kInwardWound only).
+  static constexpr size_t kCluster = 16;
+  struct Cluster {
+    Eigen::Vector3d centre, axis;
+    double radius = 0, cos_a = 0, sin_a = 1;
+    bool cone = false;  // false: the normals span a half-space or more
+  };
+  std::vector<Cluster> clusters;
   std::mutex rays_mutex;
   std::vector<std::shared_ptr<const PixelRays>> rays;  // one per intrinsics seen
 };
@@ -552,6 +592,36 @@ MeshRasterizer::MeshRasterizer(const Mesh& mesh, Faces faces) : impl_(std::make_
     }
     m.faces.push_back(face);
   }
+  if (faces != Faces::kInwardWound) return;
+  for (size_t first = 0; first < m.faces.size(); first += Impl::kCluster) {
+    const size_t last = std::min(m.faces.size(), first + Impl::kCluster);
+    Impl::Cluster c;
+    Eigen::AlignedBox3d box;
+    std::vector<Eigen::Vector3d> normals;
+    for (size_t f = first; f < last; ++f) {
+      const Eigen::Vector3d a = m.vertices[size_t(m.faces[f][0])].cast<double>();
+      const Eigen::Vector3d b = m.vertices[size_t(m.faces[f][1])].cast<double>();
+      const Eigen::Vector3d cc = m.vertices[size_t(m.faces[f][2])].cast<double>();
+      box.extend(a), box.extend(b), box.extend(cc);
+      const Eigen::Vector3d n = (b - a).cross(cc - a);
+      // A face without area has no normal; it covers no pixel either way.
+      if (n.norm() > 0 && n.allFinite()) normals.push_back(n.normalized());
+    }
+    c.centre = box.center();
+    for (size_t f = first; f < last; ++f)
+      for (int k = 0; k < 3; ++k)
+        c.radius = std::max(c.radius, (m.vertices[size_t(m.faces[f][k])].cast<double>() - c.centre).norm());
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    for (const auto& n : normals) sum += n;
+    if (sum.norm() > 1e-9 && sum.allFinite() && box.sizes().allFinite()) {
+      c.axis = sum.normalized();
+      c.cos_a = 1;
+      for (const auto& n : normals) c.cos_a = std::min(c.cos_a, n.dot(c.axis));
+      c.cos_a -= 1e-6;  // what rounding may hide of the widest angle
+      if (c.cos_a > 0) c.cone = true, c.sin_a = std::sqrt(1 - c.cos_a * c.cos_a);
+    }
+    m.clusters.push_back(c);
+  }
 }
 
 MeshRasterizer::~MeshRasterizer() = default;
@@ -589,17 +659,54 @@ ImageF MeshRasterizer::distance_image(const Intrinsics& K, const Eigen::Isometry
     Eigen::Vector3f p;
     Eigen::Vector2f px;
   };
-  const float nan = std::numeric_limits<float>::quiet_NaN();
   std::vector<Vertex> vs(m.vertices.size());
-  for (size_t i = 0; i < m.vertices.size(); ++i) {
-    Vertex& v = vs[i];
-    v.p = R * m.vertices[i] + tr;
-    v.px = raster.projectable(v.p) ? raster.pixel(v.p.x() / v.p.z(), v.p.y() / v.p.z()) : Eigen::Vector2f(nan, nan);
+  const bool inward = m.faces_seen == Faces::kInwardWound;
+  // Runs of faces every one of which turns away from the camera: a face's
+  // det (below) is n.(a - C) for its world normal n and the camera centre C;
+  // with the run's vertices within `radius` of `centre` and its unit normals
+  // within the cone, n.(a - C) <= |n| max over the cone of (n^.v + radius)
+  // for v = centre - C, and that maximum is |v| cos(theta - alpha) once
+  // theta (axis to v) exceeds alpha. Kept clear of 0 by 1e-4 |v|, well past
+  // what float rounding moves a face's det.
+  std::vector<uint8_t> skip(inward && !getenv("S2R_NOCL") ? m.clusters.size() : 0, 0);
+  const Eigen::Vector3d C = world_from_camera.translation();
+  for (size_t k = 0; k < skip.size(); ++k) {
+    const Impl::Cluster& c = m.clusters[k];
+    if (!c.cone) continue;
+    const Eigen::Vector3d v = c.centre - C;
+    const double most = c.axis.dot(v) * c.cos_a + c.axis.cross(v).norm() * c.sin_a;
+    skip[k] = most < -(c.radius + 1e-4 * v.norm());
+  }
+  // Every vertex in the camera frame and, where it can be projected, its
+  // pixel (NaN elsewhere): four at a time, the pose's product written out.
+  const size_t nv = m.vertices.size();
+  for (size_t i = 0; i < nv; i += 4) {
+    alignas(16) float wx[4] = {}, wy[4] = {}, wz[4] = {};
+    const size_t n = std::min<size_t>(4, nv - i);
+    for (size_t j = 0; j < n; ++j) wx[j] = m.vertices[i + j].x(), wy[j] = m.vertices[i + j].y(), wz[j] = m.vertices[i + j].z();
+    const __m128 X = _mm_load_ps(wx), Y = _mm_load_ps(wy), Z = _mm_load_ps(wz);
+    auto row = [&](int r) {
+      return _mm_add_ps(_mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_set1_ps(R(r, 0)), X), _mm_mul_ps(_mm_set1_ps(R(r, 1)), Y)),
+                                   _mm_mul_ps(_mm_set1_ps(R(r, 2)), Z)),
+                        _mm_set1_ps(tr[r]));
+    };
+    const __m128 x = row(0), y = row(1), z = row(2);
+    __m128 px, py;
+    raster.pixels4(x, y, z, px, py);
+    alignas(16) float ox[4], oy[4], oz[4], opx[4], opy[4];
+    _mm_store_ps(ox, x), _mm_store_ps(oy, y), _mm_store_ps(oz, z), _mm_store_ps(opx, px), _mm_store_ps(opy, py);
+    for (size_t j = 0; j < n; ++j) vs[i + j] = {{ox[j], oy[j], oz[j]}, {opx[j], opy[j]}};
   }
   const bool distorted = K.has_distortion();
-  const bool inward = m.faces_seen == Faces::kInwardWound;
   const float W = float(K.width), H = float(K.height);
-  for (const Eigen::Vector3i& f : m.faces) {
+  for (size_t fi = 0; fi < m.faces.size(); ++fi) {
+    if (!skip.empty() && skip[fi / Impl::kCluster]) {
+      const size_t run = std::min(m.faces.size() - fi, Impl::kCluster);
+      st.back_faces += run, st.back_faces_in_runs += run;
+      fi += run - 1;
+      continue;
+    }
+    const Eigen::Vector3i& f = m.faces[fi];
     const Vertex &va = vs[size_t(f[0])], &vb = vs[size_t(f[1])], &vc = vs[size_t(f[2])];
     const Eigen::Vector2f lo = va.px.cwiseMin(vb.px).cwiseMin(vc.px), hi = va.px.cwiseMax(vb.px).cwiseMax(vc.px);
     const bool projected = lo.allFinite() && hi.allFinite();

@@ -63,6 +63,7 @@ class MeshRasterizer {
     size_t triangles_drawn = 0;     // at least one pixel tested
     size_t triangles_culled = 0;    // behind the camera or outside the view
     size_t back_faces = 0;          // left out (Faces::kInwardWound)
+    size_t back_faces_in_runs = 0;  // of which in runs of faces all turned away, not tested one by one
     size_t pixels_tested = 0;
   };
   // Distance along each pixel's ray to the nearest triangle, 0 where none.

@@ -479,11 +479,12 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
     rep.counts["visibility_stride_max"] = double(*std::max_element(stride.begin(), stride.end()));
   }
   raster.prepare(job.textures ? views.front().K : visibility_grid(views.front().K, stride.front()), job.threads);
-  std::atomic<size_t> drawn{0}, culled{0}, back{0}, tested{0};
+  std::atomic<size_t> drawn{0}, culled{0}, back{0}, back_runs{0}, tested{0};
   auto camera_depth = [&](const Intrinsics& K, const Eigen::Isometry3d& world_from_camera) {
     MeshRasterizer::Stats rs;
     ImageF d = raster.distance_image(K, world_from_camera, &rs);
     drawn += rs.triangles_drawn, culled += rs.triangles_culled, back += rs.back_faces, tested += rs.pixels_tested;
+    back_runs += rs.back_faces_in_runs;
     return d;
   };
   Model model;
@@ -560,6 +561,7 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   rep.skipped["facet_camera_pairs_outside_image"] = double(st.outside_image);
   rep.skipped["camera_depth_triangles_outside_view"] = double(culled);
   rep.skipped["camera_depth_back_faces"] = double(back);
+  rep.skipped["camera_depth_back_faces_in_whole_runs"] = double(back_runs);
   const MeshRasterizer::RayTiles tiles = raster.ray_tiles();
   rep.counts["camera_depth_ray_tiles"] = double(tiles.made);
   rep.skipped["camera_depth_ray_tiles_not_needed"] = double(tiles.total - tiles.made);
