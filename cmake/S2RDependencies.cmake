@@ -22,6 +22,8 @@ find_package(GTest REQUIRED)
 find_package(benchmark REQUIRED)
 pkg_check_modules(LIBCAMERA REQUIRED IMPORTED_TARGET libcamera)
 pkg_check_modules(LIBV4L2 REQUIRED IMPORTED_TARGET libv4l2)
+# Depth PNGs' pixel streams are inflated by libdeflate (core/image_io.cpp).
+pkg_check_modules(LIBDEFLATE REQUIRED IMPORTED_TARGET libdeflate)
 pkg_check_modules(EPOXY REQUIRED IMPORTED_TARGET epoxy)
 
 # PCL exports plain variables; wrap them in one target with SYSTEM includes.
