@@ -9,6 +9,7 @@
 #include <functional>
 #include <limits>
 #include <mutex>
+#include <optional>
 
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/Morphology.h>
@@ -226,14 +227,50 @@ void SparseVolume::integrate(const std::vector<DepthObservation>& views, int thr
     size_t used = 0, outside = 0;
   };
   std::vector<Touched> touched(views.size());
+  // Where the crop box bounds the measured points (every point used lies in
+  // it), the leaves a view touches are bits of a grid over the box's leaves
+  // (16 KB for a 0.6 m box at 1.5 mm voxels): setting a bit costs less than
+  // touching a leaf of an OpenVDB mask tree, whose top node alone is 256 KB
+  // to clear for every view. Elsewhere, or for a grid over 2^24 leaves, the
+  // mask tree.
+  Coord grid_lo;
+  std::array<size_t, 3> grid_n{};
+  bool grid = false;
+  if (m.crop && (m.crop->min().cwiseAbs().maxCoeff() / m.voxel) < double(1 << 28) &&
+      (m.crop->max().cwiseAbs().maxCoeff() / m.voxel) < double(1 << 28)) {
+    const Coord a = coord_of(m.crop->min(), m.voxel), b = coord_of(m.crop->max(), m.voxel);
+    double cells = 1;
+    for (int k = 0; k < 3; ++k) {
+      grid_lo[k] = (a[k] - band) & ~(kLeaf - 1);
+      grid_n[size_t(k)] = size_t((((b[k] + band) & ~(kLeaf - 1)) - grid_lo[k]) / kLeaf + 1);
+      cells *= double(grid_n[size_t(k)]);
+    }
+    grid = cells <= double(1 << 24);
+  }
   in_arena(threads, [&] {
     tbb::parallel_for(size_t(0), views.size(), [&](size_t vi) {
       const DepthObservation& v = views[vi];
       if (!v.depth || v.depth->empty()) return;
       const ImageU16& depth = *v.depth;
       Touched& t = touched[vi];
-      openvdb::MaskTree mask(false);
-      openvdb::tree::ValueAccessor<openvdb::MaskTree> acc(mask);
+      std::optional<openvdb::MaskTree> mask;
+      std::optional<openvdb::tree::ValueAccessor<openvdb::MaskTree>> acc;
+      std::vector<uint64_t> bits;
+      if (grid) {
+        bits.assign((grid_n[0] * grid_n[1] * grid_n[2] + 63) / 64, 0);
+      } else {
+        mask.emplace(false);
+        acc.emplace(*mask);
+      }
+      auto touch = [&](int lx, int ly, int lz) {
+        if (!grid) {
+          acc->touchLeaf(Coord(lx, ly, lz));
+          return;
+        }
+        const size_t i = (size_t((lx - grid_lo.x()) / kLeaf) * grid_n[1] + size_t((ly - grid_lo.y()) / kLeaf)) * grid_n[2] +
+                         size_t((lz - grid_lo.z()) / kLeaf);
+        bits[i >> 6] |= uint64_t(1) << (i & 63);
+      };
       Coord last_lo(std::numeric_limits<int>::max()), last_hi = last_lo;
       const Intrinsics& K = v.intrinsics;
       const bool pinhole = !K.has_distortion();
@@ -272,10 +309,21 @@ void SparseVolume::integrate(const std::vector<DepthObservation>& views, int thr
           last_lo = lo, last_hi = hi;
           for (int lx = lo.x(); lx <= hi.x(); lx += kLeaf)
             for (int ly = lo.y(); ly <= hi.y(); ly += kLeaf)
-              for (int lz = lo.z(); lz <= hi.z(); lz += kLeaf) acc.touchLeaf(Coord(lx, ly, lz));
+              for (int lz = lo.z(); lz <= hi.z(); lz += kLeaf) touch(lx, ly, lz);
         }
       }
-      for (auto leaf = mask.cbeginLeaf(); leaf; ++leaf) t.leaves.push_back(leaf->origin());
+      if (grid) {
+        for (size_t w = 0; w < bits.size(); ++w)
+          for (uint64_t b = bits[w]; b; b &= b - 1) {
+            size_t i = w * 64 + size_t(std::countr_zero(b));
+            const int z = int(i % grid_n[2]);
+            i /= grid_n[2];
+            const int y = int(i % grid_n[1]), x = int(i / grid_n[1]);
+            t.leaves.push_back(grid_lo.offsetBy(x * kLeaf, y * kLeaf, z * kLeaf));
+          }
+      } else {
+        for (auto leaf = mask->cbeginLeaf(); leaf; ++leaf) t.leaves.push_back(leaf->origin());
+      }
     });
   });
 
