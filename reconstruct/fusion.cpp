@@ -357,11 +357,24 @@ void SparseVolume::integrate(const std::vector<DepthObservation>& views, int thr
     return spread(c.x()) | spread(c.y()) << 1 | spread(c.z()) << 2;
   };
   // Beyond 2^20 leaves from the origin two leaves may share a key: then by
-  // coordinate. Stable: a leaf's views stay in view order.
-  std::stable_sort(pairs.begin(), pairs.end(), [&](const auto& a, const auto& b) {
-    const uint64_t ka = morton(a.first), kb = morton(b.first);
-    return ka != kb ? ka < kb : a.first < b.first;
-  });
+  // coordinate. A leaf's views stay in view order (a view touches a leaf
+  // once). Keys made once per pair, not per comparison.
+  {
+    struct Keyed {
+      uint64_t key;
+      Coord leaf;
+      uint32_t view;
+    };
+    std::vector<Keyed> keyed;
+    keyed.reserve(pairs.size());
+    for (const auto& [c, vi] : pairs) keyed.push_back({morton(c), c, vi});
+    std::sort(keyed.begin(), keyed.end(), [](const Keyed& a, const Keyed& b) {
+      if (a.key != b.key) return a.key < b.key;
+      if (a.leaf != b.leaf) return a.leaf < b.leaf;
+      return a.view < b.view;
+    });
+    for (size_t i = 0; i < keyed.size(); ++i) pairs[i] = {keyed[i].leaf, keyed[i].view};
+  }
   std::vector<size_t> groups;  // start of each leaf's run in `pairs`
   for (size_t i = 0; i < pairs.size(); ++i)
     if (i == 0 || pairs[i].first != pairs[i - 1].first) groups.push_back(i);
