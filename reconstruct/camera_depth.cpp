@@ -741,7 +741,9 @@ ImageF MeshRasterizer::distance_image(const Intrinsics& K, const Eigen::Isometry
     if (det < 0)
       for (auto& e : t.e) e = -e;
     const Eigen::Vector3d n = (b - a).cross(c - a).cast<double>();
-    t.m = (n / n.dot(a.cast<double>())).cast<float>();
+    // One quotient, then products: in double, so the float m is the
+    // quotient's rounding all but never changed by the extra step.
+    t.m = (n * (1.0 / n.dot(a.cast<double>()))).cast<float>();
     // Under distortion a triangle's edges bow out of its vertices' box: by
     // a fraction of a pixel for small ones, which get that much margin; wide
     // ones are bounded by their edges' samples.
