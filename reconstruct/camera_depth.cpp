@@ -593,11 +593,12 @@ MeshRasterizer::MeshRasterizer(const Mesh& mesh, Faces faces) : impl_(std::make_
     m.faces.push_back(face);
   }
   if (faces != Faces::kInwardWound) return;
+  std::vector<Eigen::Vector3d> normals;
   for (size_t first = 0; first < m.faces.size(); first += Impl::kCluster) {
     const size_t last = std::min(m.faces.size(), first + Impl::kCluster);
     Impl::Cluster c;
     Eigen::AlignedBox3d box;
-    std::vector<Eigen::Vector3d> normals;
+    normals.clear();
     for (size_t f = first; f < last; ++f) {
       const Eigen::Vector3d a = m.vertices[size_t(m.faces[f][0])].cast<double>();
       const Eigen::Vector3d b = m.vertices[size_t(m.faces[f][1])].cast<double>();
