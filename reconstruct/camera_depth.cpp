@@ -541,8 +541,8 @@ struct MeshRasterizer::Impl {
   // Runs of kCluster consecutive faces (neighbours on the Morton curve) with
   // a sphere holding their vertices and a cone holding their unit normals
   // ((b - a) x (c - a), the inward winding's): a camera that sees every
-  // normal of a run turned away from it skips the run's faces and their
-  // vertices (Faces::kInwardWound only).
+  // normal of a run turned away from it skips the run's faces without a
+  // test per face (Faces::kInwardWound only).
   static constexpr size_t kCluster = 16;
   struct Cluster {
     Eigen::Vector3d centre, axis;
@@ -669,7 +669,7 @@ ImageF MeshRasterizer::distance_image(const Intrinsics& K, const Eigen::Isometry
   // for v = centre - C, and that maximum is |v| cos(theta - alpha) once
   // theta (axis to v) exceeds alpha. Kept clear of 0 by 1e-4 |v|, well past
   // what float rounding moves a face's det.
-  std::vector<uint8_t> skip(inward && !getenv("S2R_NOCL") ? m.clusters.size() : 0, 0);
+  std::vector<uint8_t> skip(inward ? m.clusters.size() : 0, 0);
   const Eigen::Vector3d C = world_from_camera.translation();
   for (size_t k = 0; k < skip.size(); ++k) {
     const Impl::Cluster& c = m.clusters[k];
