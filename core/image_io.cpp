@@ -104,9 +104,12 @@ bool png_rows(PngReader& r, png_bytep* rows) {
 class FastGray16 {
  public:
   // nullopt: not taken (libpng decides).
-  static std::optional<ImageU16> decode(const std::vector<uint8_t>& file) {
+  static bool signed_png(const std::vector<uint8_t>& file) {
     static constexpr uint8_t kSignature[8] = {137, 'P', 'N', 'G', 13, 10, 26, 10};
-    if (file.size() < 8 || std::memcmp(file.data(), kSignature, 8) != 0) return std::nullopt;
+    return file.size() >= 8 && std::memcmp(file.data(), kSignature, 8) == 0;
+  }
+  static std::optional<ImageU16> decode(const std::vector<uint8_t>& file) {
+    if (!signed_png(file)) return std::nullopt;
     uint32_t width = 0, height = 0;
     std::vector<uint8_t> stream;  // the IDAT chunks' data, joined
     bool header = false, idat_done = false, end = false;
@@ -227,12 +230,15 @@ std::optional<Result<ImageU16>> read_png_gray16(const fs::path& path) {
   {
     // The whole file in memory for the fast decoder; libpng reads it again
     // where that declines.
+    // (Only a PNG is read whole: its signature first.)
     std::FILE* f = std::fopen(path.c_str(), "rb");
     if (f) {
-      std::vector<uint8_t> file;
+      std::vector<uint8_t> file(8);
+      bool read_ok = std::fread(file.data(), 1, 8, f) == 8 && FastGray16::signed_png(file);
       uint8_t buf[65536];
-      for (size_t n; (n = std::fread(buf, 1, sizeof buf, f)) > 0;) file.insert(file.end(), buf, buf + n);
-      const bool read_ok = !std::ferror(f);
+      if (read_ok)
+        for (size_t n; (n = std::fread(buf, 1, sizeof buf, f)) > 0;) file.insert(file.end(), buf, buf + n);
+      read_ok = read_ok && !std::ferror(f);
       std::fclose(f);
       if (read_ok)
         if (auto img = FastGray16::decode(file)) return Result<ImageU16>(std::move(*img));
