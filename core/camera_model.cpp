@@ -10,15 +10,6 @@ bool Intrinsics::has_distortion() const {
   return false;
 }
 
-Eigen::Vector2d Intrinsics::distort(const Eigen::Vector2d& xn) const {
-  const double x = xn.x(), y = xn.y();
-  const double r2 = x * x + y * y;
-  const double k1 = dist[0], k2 = dist[1], p1 = dist[2], p2 = dist[3], k3 = dist[4];
-  const double radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3));
-  return {x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x),
-          y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y};
-}
-
 std::optional<Eigen::Vector2d> Intrinsics::undistort(const Eigen::Vector2d& xd) const { return undistort(xd, xd); }
 
 std::optional<Eigen::Vector2d> Intrinsics::undistort(const Eigen::Vector2d& xd, const Eigen::Vector2d& start) const {
@@ -44,12 +35,6 @@ std::optional<Eigen::Vector2d> Intrinsics::undistort(const Eigen::Vector2d& xd, 
   }
   if (!x.allFinite() || (distort(x) - xd).norm() > 1e-9) return std::nullopt;
   return x;
-}
-
-std::optional<Eigen::Vector2d> Intrinsics::project(const Eigen::Vector3d& p) const {
-  if (!(p.z() > 0)) return std::nullopt;
-  Eigen::Vector2d d = distort({p.x() / p.z(), p.y() / p.z()});
-  return Eigen::Vector2d(fx * d.x() + cx, fy * d.y() + cy);
 }
 
 std::optional<Eigen::Vector3d> Intrinsics::ray(const Eigen::Vector2d& pixel) const {

@@ -25,8 +25,15 @@ struct Intrinsics {
   std::array<double, 5> dist{};  // k1 k2 p1 p2 k3
 
   bool has_distortion() const;
-  // Normalised (x/z, y/z) -> distorted normalised coordinates.
-  Eigen::Vector2d distort(const Eigen::Vector2d& xn) const;
+  // Normalised (x/z, y/z) -> distorted normalised coordinates. (Inline, as
+  // project: both run per facet and camera in reconstruct.)
+  Eigen::Vector2d distort(const Eigen::Vector2d& xn) const {
+    const double x = xn.x(), y = xn.y();
+    const double r2 = x * x + y * y;
+    const double k1 = dist[0], k2 = dist[1], p1 = dist[2], p2 = dist[3], k3 = dist[4];
+    const double radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3));
+    return {x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x), y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y};
+  }
   // Inverse of distort() by Newton iterations; nullopt where it does not
   // converge (far outside the calibrated field).
   std::optional<Eigen::Vector2d> undistort(const Eigen::Vector2d& xd) const;
@@ -35,7 +42,11 @@ struct Intrinsics {
   std::optional<Eigen::Vector2d> undistort(const Eigen::Vector2d& xd, const Eigen::Vector2d& start) const;
 
   // Camera-frame point -> pixel. nullopt behind the camera (z <= 0).
-  std::optional<Eigen::Vector2d> project(const Eigen::Vector3d& p_camera) const;
+  std::optional<Eigen::Vector2d> project(const Eigen::Vector3d& p) const {
+    if (!(p.z() > 0)) return std::nullopt;
+    const Eigen::Vector2d d = distort({p.x() / p.z(), p.y() / p.z()});
+    return Eigen::Vector2d(fx * d.x() + cx, fy * d.y() + cy);
+  }
   // Pixel -> ray direction in the camera frame with z = 1.
   std::optional<Eigen::Vector3d> ray(const Eigen::Vector2d& pixel) const;
   // Pixel + depth along z -> camera-frame point.
@@ -51,6 +62,14 @@ struct Intrinsics {
   // distortion finite. `where` prefixes the message.
   Status validate(const std::string& where) const;
 };
+
+// std::lround (halves away from zero) without the library call, for
+// |v| < 2^31: the truncation and the remainder v - t are exact there.
+inline int round_half_away(double v) {
+  const int t = int(v);
+  const double f = v - double(t);
+  return t + int(f >= 0.5) - int(f <= -0.5);
+}
 
 // Rotation about a unit axis through a point: the turntable's motion.
 Eigen::Isometry3d rotation_about_axis(const Eigen::Vector3d& axis_dir,

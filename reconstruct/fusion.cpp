@@ -111,14 +111,6 @@ struct LeafReader {
   }
 };
 
-// std::lround inline (half away from zero), for |v| < 2^31: the
-// truncation and the remainder v - t are exact there.
-int round_half_away(double v) {
-  const int t = int(v);
-  const double f = v - double(t);
-  return t + int(f >= 0.5) - int(f <= -0.5);
-}
-
 Coord coord_of(const Eigen::Vector3d& p, double voxel) {
   const Eigen::Vector3d q = p / voxel;
   // Beyond +-2^30 voxels (kilometres at any voxel size) lround's own rule.

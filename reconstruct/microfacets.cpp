@@ -160,40 +160,17 @@ FacetStats build_facets(const std::vector<EvidenceVoxel>& ev, const std::vector<
     if (D && !whole && (D->width != G.width || D->height != G.height)) D = nullptr;  // no usable depth: nothing occludes
     if (G.width < 1 || G.height < 1) D = nullptr;
     const int step = whole ? k : 1, start = whole ? off : 0;
-    // Intrinsics::project and contains, inline (the same arithmetic).
-    const bool distorted = K.has_distortion();
-    const double k1 = K.dist[0], k2 = K.dist[1], p1 = K.dist[2], p2 = K.dist[3], k3 = K.dist[4];
-    const double x_end = K.width - 0.5, y_end = K.height - 0.5;
     for (size_t i = 0; i < drafts.size(); ++i) {
       const Draft& d = drafts[i];
       const Eigen::Vector3f pc = xf[c].R * d.centre + xf[c].t;
-      const Eigen::Vector3d p = pc.cast<double>();
-      if (!(p.z() > 0)) {
-        ++outside[c];
-        continue;
-      }
-      double u = p.x() / p.z(), v = p.y() / p.z();
-      if (distorted) {
-        const double r2 = u * u + v * v;
-        const double radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3));
-        const double du = u * radial + 2 * p1 * u * v + p2 * (r2 + 2 * u * u);
-        const double dv = v * radial + p1 * (r2 + 2 * v * v) + 2 * p2 * u * v;
-        u = du, v = dv;
-      }
-      const double px = K.fx * u + K.cx, py = K.fy * v + K.cy;
-      if (!(px >= -0.5 && py >= -0.5 && px < x_end && py < y_end)) {
+      auto px = K.project(pc.cast<double>());
+      if (!px || !K.contains(*px)) {
         ++outside[c];
         continue;
       }
       if (D) {
-        // Nearest grid point, halves away from zero (as std::lround, without the call).
-        auto nearest = [](double q) {
-          const int t = int(q);
-          const double f = q - double(t);
-          return t + int(f >= 0.5) - int(f <= -0.5);
-        };
-        const int gx = std::clamp(nearest((px - off) / k), 0, G.width - 1);
-        const int gy = std::clamp(nearest((py - off) / k), 0, G.height - 1);
+        const int gx = std::clamp(round_half_away((px->x() - off) / k), 0, G.width - 1);
+        const int gy = std::clamp(round_half_away((px->y() - off) / k), 0, G.height - 1);
         const float dd = D->data[size_t(start + step * gy) * size_t(D->width) + size_t(start + step * gx)];
         if (dd > 0 && pc.norm() > dd + tolerance(d)) {
           ++occluded[c];
