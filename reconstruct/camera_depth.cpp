@@ -348,44 +348,20 @@ class Raster {
 
   // Normalised (x/z, y/z) -> pixel through the lens model (float).
   Eigen::Vector2f pixel(float xn, float yn) const {
-    float x = xn, y = yn;
-    if (distorted_) {
-      const float r2 = xn * xn + yn * yn;
-      const float radial = 1 + r2 * (dist_[0] + r2 * (dist_[1] + r2 * dist_[4]));
-      x = xn * radial + 2 * dist_[2] * xn * yn + dist_[3] * (r2 + 2 * xn * xn);
-      y = yn * radial + dist_[2] * (r2 + 2 * yn * yn) + 2 * dist_[3] * xn * yn;
-    }
-    return {float(K_.fx) * x + float(K_.cx), float(K_.fy) * y + float(K_.cy)};
+    __m128 px, py;
+    lens4(_mm_set1_ps(xn), _mm_set1_ps(yn), px, py);
+    return {_mm_cvtss_f32(px), _mm_cvtss_f32(py)};
   }
-  // Four camera-frame points' pixels (as pixel() computes them, in its
-  // order of operations, four lanes at a time), NaN where a point does not
-  // project (as projectable() tells).
+  // Four camera-frame points' pixels, NaN where a point does not project
+  // (within kNear of the camera plane or beyond the lens model's valid field).
   void pixels4(__m128 x, __m128 y, __m128 z, __m128& px, __m128& py) const {
     const __m128 xn = _mm_div_ps(x, z), yn = _mm_div_ps(y, z);
     const __m128 r2 = _mm_add_ps(_mm_mul_ps(xn, xn), _mm_mul_ps(yn, yn));
     const __m128 ok = _mm_and_ps(_mm_cmpgt_ps(z, _mm_set1_ps(kNear)), _mm_cmple_ps(r2, _mm_set1_ps(pr_.valid_r2)));
-    __m128 u = xn, v = yn;
-    if (distorted_) {
-      auto c = [](float f) { return _mm_set1_ps(f); };
-      const __m128 radial = _mm_add_ps(
-          c(1.f), _mm_mul_ps(r2, _mm_add_ps(c(dist_[0]), _mm_mul_ps(r2, _mm_add_ps(c(dist_[1]), _mm_mul_ps(r2, c(dist_[4])))))));
-      const __m128 two = c(2.f);
-      u = _mm_add_ps(_mm_add_ps(_mm_mul_ps(xn, radial), _mm_mul_ps(_mm_mul_ps(c(2 * dist_[2]), xn), yn)),
-                     _mm_mul_ps(c(dist_[3]), _mm_add_ps(r2, _mm_mul_ps(_mm_mul_ps(two, xn), xn))));
-      v = _mm_add_ps(_mm_add_ps(_mm_mul_ps(yn, radial), _mm_mul_ps(c(dist_[2]), _mm_add_ps(r2, _mm_mul_ps(_mm_mul_ps(two, yn), yn)))),
-                     _mm_mul_ps(_mm_mul_ps(c(2 * dist_[3]), xn), yn));
-    }
+    lens4(xn, yn, px, py);
     const __m128 nan = _mm_set1_ps(std::numeric_limits<float>::quiet_NaN());
-    px = _mm_add_ps(_mm_mul_ps(_mm_set1_ps(float(K_.fx)), u), _mm_set1_ps(float(K_.cx)));
-    py = _mm_add_ps(_mm_mul_ps(_mm_set1_ps(float(K_.fy)), v), _mm_set1_ps(float(K_.cy)));
     px = _mm_or_ps(_mm_and_ps(ok, px), _mm_andnot_ps(ok, nan));
     py = _mm_or_ps(_mm_and_ps(ok, py), _mm_andnot_ps(ok, nan));
-  }
-  // Whether a camera-frame point projects within the lens model's valid field.
-  bool projectable(const Eigen::Vector3f& p) const {
-    if (!(p.z() > kNear)) return false;
-    const float xn = p.x() / p.z(), yn = p.y() / p.z();
-    return xn * xn + yn * yn <= pr_.valid_r2;
   }
 
   // The triangle's pixels when its vertices alone do not bound them (behind
@@ -518,6 +494,26 @@ class Raster {
   float bow() const { return pr_.bow; }
 
  private:
+
+  // The lens model on four normalised points (x/z, y/z) at once: Brown-
+  // Conrady distortion (Intrinsics::distort's terms, in float), then the
+  // focal lengths and principal point.
+  void lens4(__m128 xn, __m128 yn, __m128& px, __m128& py) const {
+    __m128 u = xn, v = yn;
+    if (distorted_) {
+      auto c = [](float f) { return _mm_set1_ps(f); };
+      const __m128 r2 = _mm_add_ps(_mm_mul_ps(xn, xn), _mm_mul_ps(yn, yn));
+      const __m128 radial = _mm_add_ps(
+          c(1.f), _mm_mul_ps(r2, _mm_add_ps(c(dist_[0]), _mm_mul_ps(r2, _mm_add_ps(c(dist_[1]), _mm_mul_ps(r2, c(dist_[4])))))));
+      const __m128 two = c(2.f);
+      u = _mm_add_ps(_mm_add_ps(_mm_mul_ps(xn, radial), _mm_mul_ps(_mm_mul_ps(c(2 * dist_[2]), xn), yn)),
+                     _mm_mul_ps(c(dist_[3]), _mm_add_ps(r2, _mm_mul_ps(_mm_mul_ps(two, xn), xn))));
+      v = _mm_add_ps(_mm_add_ps(_mm_mul_ps(yn, radial), _mm_mul_ps(c(dist_[2]), _mm_add_ps(r2, _mm_mul_ps(_mm_mul_ps(two, yn), yn)))),
+                     _mm_mul_ps(_mm_mul_ps(c(2 * dist_[3]), xn), yn));
+    }
+    px = _mm_add_ps(_mm_mul_ps(_mm_set1_ps(float(K_.fx)), u), _mm_set1_ps(float(K_.cx)));
+    py = _mm_add_ps(_mm_mul_ps(_mm_set1_ps(float(K_.fy)), v), _mm_set1_ps(float(K_.cy)));
+  }
 
   const PixelRays& pr_;
   const Intrinsics& K_;
