@@ -103,11 +103,11 @@ bool png_rows(PngReader& r, png_bytep* rows) {
 // left to libpng, whose verdict and messages stand.
 class FastGray16 {
  public:
-  // nullopt: not taken (libpng decides).
   static bool signed_png(const std::vector<uint8_t>& file) {
     static constexpr uint8_t kSignature[8] = {137, 'P', 'N', 'G', 13, 10, 26, 10};
     return file.size() >= 8 && std::memcmp(file.data(), kSignature, 8) == 0;
   }
+  // nullopt: not taken (libpng decides).
   static std::optional<ImageU16> decode(const std::vector<uint8_t>& file) {
     if (!signed_png(file)) return std::nullopt;
     uint32_t width = 0, height = 0;
@@ -119,7 +119,7 @@ class FastGray16 {
       if (length > 0x7fffffffu || length > file.size() - at - 12) return std::nullopt;
       const uint8_t* type = &file[at + 4];
       for (int k = 0; k < 4; ++k)
-        if (!std::isalpha(type[k]) || type[k] > 127) return std::nullopt;  // not a chunk name
+        if (type[k] > 127 || !std::isalpha(type[k])) return std::nullopt;  // not a chunk name
       const uint8_t* data = type + 4;
       if (libdeflate_crc32(0, type, 4 + size_t(length)) != be32(data + length)) return std::nullopt;
       const bool critical = !(type[0] & 0x20);
@@ -157,8 +157,8 @@ class FastGray16 {
       return std::nullopt;
     ImageU16 img(int(width), int(height), 1);
     // Two row buffers, each the other's row above in turn (zeros above the first).
-    std::vector<uint8_t> rows(2 * (row_bytes + 16), 0);
-    uint8_t *row = rows.data(), *prior = rows.data() + row_bytes + 16;
+    std::vector<uint8_t> rows(2 * row_bytes, 0);
+    uint8_t *row = rows.data(), *prior = rows.data() + row_bytes;
     for (size_t y = 0; y < height; ++y) {
       const uint8_t* in = &raw[y * (row_bytes + 1)];
       if (!unfilter(in[0], in + 1, prior, row, row_bytes)) return std::nullopt;
@@ -180,7 +180,7 @@ class FastGray16 {
   static uint32_t be32(const uint8_t* p) { return uint32_t(p[0]) << 24 | uint32_t(p[1]) << 16 | uint32_t(p[2]) << 8 | p[3]; }
 
   // One row's filter undone (two bytes a pixel): `in` filtered, `prior` the
-  // row above unfiltered (zeros for the first), `out` at least n + 16 bytes.
+  // row above unfiltered (zeros for the first), `out` n bytes.
   static bool unfilter(uint8_t filter, const uint8_t* in, const uint8_t* prior, uint8_t* out, size_t n) {
     constexpr size_t bpp = 2;
     switch (filter) {
@@ -228,9 +228,8 @@ class FastGray16 {
 // nullopt: not a 16-bit greyscale PNG (OpenImageIO reads it).
 std::optional<Result<ImageU16>> read_png_gray16(const fs::path& path) {
   {
-    // The whole file in memory for the fast decoder; libpng reads it again
-    // where that declines.
-    // (Only a PNG is read whole: its signature first.)
+    // A PNG (its signature first) read whole for the fast decoder; libpng
+    // reads it again where that declines.
     std::FILE* f = std::fopen(path.c_str(), "rb");
     if (f) {
       std::vector<uint8_t> file(8);
