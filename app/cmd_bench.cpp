@@ -179,7 +179,7 @@ int bench_calibrate(const fs::path& out) {
   so.views = 48;
   auto synth = synth_session(so, session);
   if (!synth) return error(synth.error().message);
-  auto truth = load_synth_truth(session);
+  auto truth = load_ground_truth(session);
   auto s = load_session(session);
   if (!truth || !s) return error("cannot read the board session back");
   const BoardSpec board = *BoardSpec::parse("chessboard:9x6:0.02");
@@ -372,13 +372,13 @@ int bench_reconstruct(const fs::path& out, const std::string& scene_in) {
   so.views = 24;
   so.seed = 3;
   if (auto made = synth_session(so, session); !made) return error(made.error().message);
-  auto truth = load_synth_truth(session);
+  auto truth = load_ground_truth(session);
   if (!truth) return error(truth.error().message);
   auto mesh = read_ply_mesh(session / "ground_truth" / "geometry.ply");
   if (!mesh) return error(mesh.error().message);
   auto s = load_session(session);
   if (!s) return error(s.error().message);
-  const fs::path peer_script = fs::path(S2R_SCRIPTS_DIR) / "open3d_tsdf_peer.py";
+  const fs::path peer_script = fs::path(build_source_dir()) / "scripts" / "open3d_tsdf_peer.py";
   // Debian's python3-open3d lives in the system interpreter (not a pyenv or venv one).
   const std::string python = fs::exists("/usr/bin/python3") ? "/usr/bin/python3" : "python3";
   const bool have_peer = std::system((python + " -c 'import open3d' >/dev/null 2>&1").c_str()) == 0;
@@ -401,7 +401,7 @@ int bench_reconstruct(const fs::path& out, const std::string& scene_in) {
     job.session = session;
     job.out = out / fmt::format("ours_{:.1f}mm", 1e3 * w);
     job.voxel_m = w;
-    job.geometry = "depth";
+    job.geometry = Geometry::depth;
     job.per_region = false;
     job.textures = false;
     Result<Report> r;
@@ -622,7 +622,6 @@ int bench_render(const fs::path& out, const std::string& scene_in) {
     job.session = session;
     job.out = model;
     job.holdout = held;
-    job.quiet = true;
     auto built = run_reconstruct_job(job);
     if (!built) return error(built.error().message);
     rep.counts["facets_" + scene] = built->counts.at("facets");
@@ -730,7 +729,7 @@ int bench_render(const fs::path& out, const std::string& scene_in) {
   return finish(rep, out / "report.json");
 }
 
-// The seed's table 2: the four scenes (A mirrors spread over every screen, B
+// Mochizuki and Makino's table 2: the four scenes (A mirrors spread over every screen, B
 // diffuse spread, C mirrors on the front screen only, D diffuse front only),
 // full render against visual-field LOD with the gaze forward and down, on the
 // three CAVE screens. Error: PSNR against the full render inside the central
@@ -815,7 +814,7 @@ int bench_raytrace(const fs::path& out, int repeats, int size) {
     }
     rep.counts[fmt::format("full_render_s_{}", scene)] = tf;
     rep.counts[fmt::format("bvh_build_s_{}", scene)] = rt.build_seconds();
-    // What switching by rebuilding each frame (the seed's way) would add.
+    // What switching by rebuilding each frame (the paper's way) would add.
     rep.errors[fmt::format("rebuild_per_frame_over_full_{}", scene)] = rt.build_seconds() / tf;
   }
   rep.errors["time_ratio_best"] = best;
@@ -833,7 +832,7 @@ int bench_raytrace(const fs::path& out, int repeats, int size) {
 }
 
 
-// The seed's tables 3/4 as a sweep: weight threshold th and pyramid resolution
+// Okumura's (2003) tables 3/4 as a sweep: weight threshold th and pyramid resolution
 // (samples per lobe scale) and map size vs error against the brute-force lobe
 // vs build seconds vs memory, on the panorama with a sun 10^4 times its sky;
 // then the default setting on every bundled panorama. The peer is the brute
@@ -972,9 +971,9 @@ int bench_envmap(const fs::path& out, int voxels) {
   return finish(rep, out / "report.json");
 }
 
-// The seed's material LOD comparison: parallax occlusion mapping everywhere
+// Tsutsumi's (2010) material LOD comparison: parallax occlusion mapping everywhere
 // against the per-pixel switch by eq. 4.1, on a flat board and on a roof
-// model, for the seed's (R, D) conditions and a flat material (whose detailed
+// model, for the thesis's (R, D) conditions and a flat material (whose detailed
 // method is bump mapping). Frame time best of N interleaved; PSNR against the
 // detailed method over all pixels and inside the switch band |V - T| <= blend.
 int bench_material(const fs::path& out, int repeats) {
@@ -1092,17 +1091,17 @@ void add_bench_commands(CLI::App& app) {
                   "register (Stanford bunny ring-scan pose error vs seconds: ours on all ten scans and on the ring alone, against PCL ICP chained around the ring; --repeats = seeds), "
                   "reconstruct (surface error and build seconds vs facet size on the rig, against Open3D TSDF + marching cubes), "
                   "render (held-out PSNR vs 1280x720 frame ms per drawing setting, rig bunny and fuzzy, textured meshes in the same run), "
-                  "raytrace (the seed's four CAVE scenes: visual-field LOD time vs the full render, gaze forward and down, PSNR inside "
+                  "raytrace (Mochizuki and Makino's four CAVE scenes: visual-field LOD time vs the full render, gaze forward and down, PSNR inside "
                   "the central field and over all pixels), envmap (environment map error against brute-force Phong vs build seconds "
                   "and memory, per size, weight threshold and pyramid resolution; every bundled panorama; a GL glossy sphere against the ray "
-                  "tracer), material (texture / bump / parallax occlusion mapping switched per pixel by the seed's thresholds, "
+                  "tracer), material (texture / bump / parallax occlusion mapping switched per pixel by Tsutsumi's thresholds, "
                   "frame time and PSNR against parallax everywhere, on a board and a roof model)")
       ->required();
   sub->add_option("--out", *out, "output folder")->required();
   sub->add_option("--repeats", *repeats, "renders per point (median)")->capture_default_str();
   sub->add_option("--scene", *scene, "rig scene for the rig sweep")->capture_default_str();
   auto size = std::make_shared<int>(512);
-  sub->add_option("--size", *size, "raytrace: pixels per CAVE screen side (the seed: 256; 512 steadies the timings)")->capture_default_str();
+  sub->add_option("--size", *size, "raytrace: pixels per CAVE screen side (the paper: 256; 512 steadies the timings)")->capture_default_str();
   auto voxels = std::make_shared<int>(10000);
   sub->add_option("--voxels", *voxels, "envmap: voxels checked against brute force at the default setting (a tenth elsewhere)")
       ->capture_default_str();

@@ -101,55 +101,50 @@ void add_reconstruct(CLI::App& app) {
       "angles, else the synthetic rig's ground truth.\n"
       "Writes OUT/model.json, facets.bin, facet_cameras.bin, cameras/NNNN.exr (RGBA + Z), surface.ply\n"
       "and report.json (seconds per step, facets, memory, voxel sizes, predicted texel error, skipped work).");
-  struct Args {
-    std::string session, out, poses, calibration, voxel = "auto", geometry = "auto", holdout;
-    double target_error = 0.5, truncation = 4;
-    bool uniform = false, no_textures = false;
-    int threads = 0;
-  };
-  auto a = std::make_shared<Args>();
-  sub->add_option("session", a->session, "capture session folder")->required();
-  sub->add_option("--out", a->out, "model folder")->required();
-  sub->add_option("--poses", a->poses, "registered poses (s2r register)");
-  sub->add_option("--calibration", a->calibration, "calibration file (intrinsics, depth extrinsic, turntable axis)");
-  sub->add_option("--voxel", a->voxel,
+  // Flags bind straight to the job: each default is the job's own.
+  auto job = std::make_shared<ReconstructJob>();
+  auto voxel = std::make_shared<std::string>("auto");
+  auto geometry = std::make_shared<std::string>(geometry_name(job->geometry));
+  auto holdout = std::make_shared<std::string>();
+  sub->add_option("session", job->session, "capture session folder")->required();
+  sub->add_option("--out", job->out, "model folder")->required();
+  sub->add_option("--poses", job->poses, "registered poses (s2r register)");
+  sub->add_option("--calibration", job->calibration, "calibration file (intrinsics, depth extrinsic, turntable axis)");
+  sub->add_option("--voxel", *voxel,
                   "facet size w in metres, or 'auto': the largest w whose texel error bound (w/2) sin(gap/2) stays under "
                   "--target-error pixels at the cameras' distance, halved for reliable regions")
       ->capture_default_str();
-  sub->add_option("--target-error", a->target_error, "on-screen texel error in pixels that --voxel auto keeps under")
+  sub->add_option("--target-error", job->target_error_px, "on-screen texel error in pixels that --voxel auto keeps under")
       ->capture_default_str();
-  sub->add_option("--geometry", a->geometry,
+  sub->add_option("--geometry", *geometry,
                   "depth (fusion), hull (silhouettes only), both, or auto (depth, plus the hull against a uniform backdrop)")
       ->check(CLI::IsMember({"auto", "depth", "hull", "both"}))
       ->capture_default_str();
-  sub->add_option("--holdout", a->holdout, "I,J,...: frames left out entirely (for evaluation)");
-  sub->add_option("--truncation", a->truncation, "signed-distance truncation in voxels")->capture_default_str();
-  sub->add_flag("--uniform", a->uniform, "one facet size everywhere (no larger facets for unreliable regions)");
-  sub->add_flag("--no-textures", a->no_textures, "do not write the per-camera RGBA + depth textures (the cameras' depth is then cast only where the facets' visibility needs it)");
-  sub->add_option("--threads", a->threads, "worker threads (0 = all cores)")->capture_default_str();
-  sub->callback([a] {
-    set_runner([a] {
-      ReconstructJob job;
-      job.session = a->session;
-      job.out = a->out;
-      job.poses = a->poses;
-      job.calibration = a->calibration;
-      job.geometry = a->geometry;
-      job.target_error_px = a->target_error;
-      job.truncation_voxels = a->truncation;
-      job.per_region = !a->uniform;
-      job.textures = !a->no_textures;
-      job.threads = a->threads;
-      if (a->voxel != "auto") {
-        job.voxel_m = positive_metres(a->voxel);
-        if (!job.voxel_m) return error("--voxel: '" + a->voxel + "' is neither 'auto' nor a positive length in metres");
+  sub->add_option("--holdout", *holdout, "I,J,...: frames left out entirely (for evaluation)");
+  sub->add_option("--truncation", job->truncation_voxels, "signed-distance truncation in voxels")->capture_default_str();
+  sub->add_flag_callback("--uniform", [job] { job->per_region = false; },
+                         "one facet size everywhere (no larger facets for unreliable regions)");
+  sub->add_flag_callback("--no-textures", [job] { job->textures = false; },
+                         "do not write the per-camera RGBA + depth textures (the cameras' depth is then cast only where "
+                         "the facets' visibility needs it)");
+  sub->add_option("--threads", job->threads, "worker threads (0 = all cores)")->capture_default_str();
+  sub->callback([=] {
+    set_runner([=] {
+      static const FlagNames flags = {{"target_error_px", "--target-error"}, {"truncation_voxels", "--truncation"},
+                                      {"voxel_m", "--voxel"}, {"threads", "--threads"}, {"geometry", "--geometry"},
+                                      {"holdout", "--holdout"}};
+      job->geometry = *parse_geometry(*geometry);  // CLI11 checked the name
+      if (*voxel != "auto") {
+        job->voxel_m = positive_metres(*voxel);
+        if (!job->voxel_m) return error("--voxel: '" + *voxel + "' is neither 'auto' nor a positive length in metres");
       }
-      auto held = frame_list(a->holdout, "--holdout");
+      auto held = frame_list(*holdout, "--holdout");
       if (!held) return error(held.error().message);
-      job.holdout = *held;
-      auto r = run_reconstruct_job(job);
-      if (!r) return error(r.error().message);
-      return finish(*r, fs::path(a->out) / "report.json");
+      job->holdout = *held;
+      if (auto st = job->validate(); !st) return error(in_flag_terms(st.error(), flags));
+      auto r = run_reconstruct_job(*job);
+      if (!r) return error(in_flag_terms(r.error(), flags));
+      return finish(*r, job->out / "report.json");
     });
   });
 }

@@ -33,66 +33,49 @@ void add_preview(CLI::App& app) {
     });
   });
 }
-// The drawing options every model command shares.
+// The drawing options every model command shares, bound straight to
+// DrawOptions (each default is the renderer's own); only the two options
+// that need parsing are held as text.
 struct DrawArgs {
+  DrawOptions d;
   std::string geometry = "billboards";
-  int cameras = 3;
-  bool no_clip = false, by_camera = false, no_cull = false;
-  double clip = 0.8660254037844386, scale = 1.7320508075688772, pixel_error = 0.5;
-  int refine = 2;
-  double min_weight = 0.1;
-  bool lod = false;
-  double lod_shape = 0.5, lod_luminance = 1.5, lod_texel = 1.0;
   std::string gaze;  // "" off, "centre", or X,Y pixels
-  double mesh_reliable = 0;
 };
 
 void add_draw_options(CLI::App* sub, DrawArgs& a) {
+  DrawOptions& d = a.d;
   sub->add_option("--geometry", a.geometry, "billboards | mesh (the octree's patch mesh, textured) | surface (the fused surface mesh, textured)")
       ->check(CLI::IsMember({"billboards", "mesh", "surface"}))->capture_default_str();
-  sub->add_option("--cameras", a.cameras, "k: input cameras blended per facet (1-4)")->check(CLI::Range(1, 4))->capture_default_str();
-  sub->add_flag("--no-clip", a.no_clip, "billboards without depth clipping (the seed's comparison)");
-  sub->add_option("--pixel-error", a.pixel_error, "clip widens where a texel stays within this many pixels (0: fixed clip)")->capture_default_str();
-  sub->add_option("--refine", a.refine, "texel refinement steps along the view ray (0: the texel at the billboard point)")->capture_default_str();
-  sub->add_option("--clip", a.clip, "depth-clipping threshold |d - D| < clip * w")->check(CLI::PositiveNumber)->capture_default_str();
-  sub->add_option("--billboard-scale", a.scale, "billboard width / w (at least sqrt 3)")->capture_default_str();
-  sub->add_flag("--by-camera", a.by_camera, "colour each facet by its chosen camera");
-  sub->add_flag("--no-cull", a.no_cull, "draw every facet (no frustum or back-face culling)");
-  sub->add_option("--min-weight", a.min_weight, "leave out blended cameras whose share is below this (0: keep the best k)")
+  sub->add_option("--cameras", d.selection.cameras, "k: input cameras blended per facet (1-4)")->check(CLI::Range(1, 4))->capture_default_str();
+  sub->add_flag_callback("--no-clip", [&d] { d.depth_clip = false; }, "billboards without depth clipping (the paper's comparison)");
+  sub->add_option("--pixel-error", d.pixel_error, "clip widens where a texel stays within this many pixels (0: fixed clip)")->capture_default_str();
+  sub->add_option("--refine", d.refine_steps, "texel refinement steps along the view ray (0: the texel at the billboard point)")->capture_default_str();
+  sub->add_option("--clip", d.clip_scale, "depth-clipping threshold |d - D| < clip * w")->check(CLI::PositiveNumber)->capture_default_str();
+  sub->add_option("--billboard-scale", d.billboard_scale, "billboard width / w (at least sqrt 3)")->capture_default_str();
+  sub->add_flag("--by-camera", d.color_by_camera, "colour each facet by its chosen camera");
+  sub->add_flag_callback("--no-cull", [&d] { d.selection.frustum_cull = d.selection.backface_cull = false; },
+                         "draw every facet (no frustum or back-face culling)");
+  sub->add_option("--min-weight", d.selection.min_weight, "leave out blended cameras whose share is below this (0: keep the best k)")
       ->check(CLI::Range(0.0, 0.5))->capture_default_str();
-  sub->add_flag("--lod", a.lod, "octree level of detail: coarser billboards where the contour, luminance and texel tests allow");
-  sub->add_option("--lod-shape", a.lod_shape, "T_s: contour shape error allowed on screen (pixels)")
+  sub->add_flag("--lod", d.lod.enabled, "octree level of detail: coarser billboards where the contour, luminance and texel tests allow");
+  sub->add_option("--lod-shape", d.lod.shape_px, "T_s: contour shape error allowed on screen (pixels)")
       ->check(CLI::PositiveNumber)->capture_default_str();
-  sub->add_option("--lod-luminance", a.lod_luminance, "T_b: luminance range (0..1) x projected node side (pixels) allowed")
+  sub->add_option("--lod-luminance", d.lod.luminance, "T_b: luminance range (0..1) x projected node side (pixels) allowed")
       ->check(CLI::PositiveNumber)->capture_default_str();
-  sub->add_option("--lod-texel", a.lod_texel, "T_e: texel misplacement bound of a coarse billboard on screen (pixels)")
+  sub->add_option("--lod-texel", d.lod.texel_px, "T_e: texel misplacement bound of a coarse billboard on screen (pixels)")
       ->check(CLI::PositiveNumber)->capture_default_str();
   sub->add_option("--gaze", a.gaze, "visual-field LOD around a gaze point (turns --lod on): 'centre' or X,Y in pixels; "
                   "coarser in the periphery, nothing outside the field");
-  sub->add_option("--mesh-reliable", a.mesh_reliable, "billboards: draw the textured patch mesh where the geometry's "
+  sub->add_option("--mesh-reliable", d.mesh_reliability, "billboards: draw the textured patch mesh where the geometry's "
                   "reliability is at least R (0..1), billboards elsewhere; 0: billboards everywhere (eval: adds a 'hybrid' row)")
       ->check(CLI::Range(0.0, 1.0))->capture_default_str();
 }
 
 DrawOptions draw_options(const DrawArgs& a) {
-  DrawOptions d;
+  DrawOptions d = a.d;
   d.geometry = a.geometry == "mesh"      ? DrawOptions::Geometry::kMesh
                : a.geometry == "surface" ? DrawOptions::Geometry::kSurface
                                          : DrawOptions::Geometry::kBillboards;
-  d.selection.cameras = a.cameras;
-  d.depth_clip = !a.no_clip;
-  d.clip_scale = a.clip;
-  d.pixel_error = a.pixel_error;
-  d.refine_steps = a.refine;
-  d.billboard_scale = a.scale;
-  d.color_by_camera = a.by_camera;
-  d.selection.frustum_cull = d.selection.backface_cull = !a.no_cull;
-  d.selection.min_weight = a.min_weight;
-  d.lod.enabled = a.lod;
-  d.lod.shape_px = a.lod_shape;
-  d.lod.luminance = a.lod_luminance;
-  d.lod.texel_px = a.lod_texel;
-  d.mesh_reliability = a.mesh_reliable;
   return d;
 }
 
@@ -129,8 +112,8 @@ void add_environment_options(CLI::App* sub, EnvArgs& a) {
   sub->add_option("--floor", a.floor, "a glossy floor under the object with this roughness (0 mirror .. 1 rough)")
       ->check(CLI::Range(0.0, 1.0));
   sub->add_option("--floor-roughness-map", a.floor_map, "per-pixel floor roughness from this image's first channel (4 tiles per side)");
-  sub->add_option("--floor-relief", a.floor_relief, "a brick relief floor instead, R,D in the seed's 0..1000 (pattern repeats, "
-                  "relief depth), drawn with material LOD (parallax occlusion near, bump mapping beyond the seed's threshold)");
+  sub->add_option("--floor-relief", a.floor_relief, "a brick relief floor instead, R,D in Tsutsumi's 0..1000 (pattern repeats, "
+                  "relief depth), drawn with material LOD (parallax occlusion near, bump mapping beyond Tsutsumi's threshold)");
   sub->add_option("--floor-glossy", a.floor_glossy, "k_g of the floor: its share of glossy reflection (0: matte, no map)")
       ->check(CLI::Range(0.0, 1.0))->capture_default_str();
   sub->add_option("--sphere", a.spheres, "a glossy sphere prop X,Y,Z,RADIUS,ROUGHNESS in world metres (repeatable)");
@@ -347,7 +330,7 @@ void add_raytrace(CLI::App& app) {
   };
   auto a = std::make_shared<Args>();
   sub->add_option("--scene", a->job.scene,
-                  "the seed's scenes, 8 Stanford bunnies and one light: A mirrors on every screen, B diffuse on every screen, "
+                  "Mochizuki and Makino's scenes, 8 Stanford bunnies and one light: A mirrors on every screen, B diffuse on every screen, "
                   "C mirrors on the front screen, D diffuse on the front screen")
       ->check(CLI::IsMember({"A", "B", "C", "D", "a", "b", "c", "d"}))->capture_default_str();
   sub->add_option("--mesh", a->job.mesh, "trace this PLY mesh instead (vertex colours used when present)");

@@ -7,10 +7,12 @@
 #include <filesystem>
 #include <functional>
 #include <optional>
+#include <utility>
 #include <string>
 #include <vector>
 
 #include "core/report.h"
+#include "core/result.h"
 
 namespace s2r::cli {
 
@@ -33,7 +35,11 @@ std::vector<std::string> comma_items(const std::string& s);
 std::optional<double> positive_metres(const std::string& item);
 // "3,7,11" -> frame indices (>= 0); `flag` names the option in the error.
 Result<std::vector<int>> frame_list(const std::string& s, const std::string& flag);
-// A DESIGN.md command that later work provides.
-void add_not_yet(CLI::App& app, const std::string& name, const std::string& what);
+
+// Which flag sets which options field, for messages: a library names the
+// field ("target_error_px: must be > 0"), the user reads the flag's name.
+using FlagNames = std::vector<std::pair<std::string, std::string>>;  // field, flag
+// `e`'s message with a leading "FIELD:" replaced by "FLAG:".
+std::string in_flag_terms(const Error& e, const FlagNames& names);
 
 }  // namespace s2r::cli

@@ -41,6 +41,12 @@ std::optional<double> positive_metres(const std::string& item) {
   return v;
 }
 
+std::string in_flag_terms(const Error& e, const FlagNames& names) {
+  for (const auto& [field, flag] : names)
+    if (e.message.starts_with(field + ":")) return flag + e.message.substr(field.size());
+  return e.message;
+}
+
 Result<std::vector<int>> frame_list(const std::string& s, const std::string& flag) {
   std::vector<int> out;
   for (const auto& item : comma_items(s)) {
@@ -55,17 +61,6 @@ Result<std::vector<int>> frame_list(const std::string& s, const std::string& fla
 int error(const std::string& message) {
   std::fprintf(stderr, "s2r: error: %s\n", message.c_str());
   return 1;
-}
-
-void add_not_yet(CLI::App& app, const std::string& name, const std::string& what) {
-  auto* sub = app.add_subcommand(name, what + " (not yet available)");
-  sub->allow_extras();
-  sub->callback([name] {
-    set_runner([name] {
-      std::fprintf(stderr, "s2r %s: not yet available in this build\n", name.c_str());
-      return 2;
-    });
-  });
 }
 
 }  // namespace s2r::cli

@@ -1,4 +1,4 @@
-// The marker calibration's clear errors (DESIGN.md §12): no dots, one frame,
+// The marker calibration's clear errors (stiff cases): no dots, one frame,
 // missing depth; and the calibration file carrying the measured angles, the
 // session they belong to and the table radius. The real bear is in
 // reconstruct/registration_data_test (it registers from them).

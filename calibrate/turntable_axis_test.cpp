@@ -25,7 +25,7 @@ namespace fs = std::filesystem;
 
 struct BoardRig {
   fs::path dir;
-  SynthTruth truth;
+  GroundTruth truth;
   std::vector<AxisView> views;
 };
 
@@ -40,7 +40,7 @@ BoardRig make_board_rig(const std::string& tag, double table_error_deg = 0) {
   o.table_error_deg = table_error_deg;
   o.color_noise = 1.0;
   EXPECT_TRUE(synth_session(o, r.dir));
-  r.truth = *load_synth_truth(r.dir);
+  r.truth = *load_ground_truth(r.dir);
   auto s = load_session(r.dir);
   const BoardSpec board = *BoardSpec::parse("chessboard:9x6:0.02");
   for (const auto& f : s->frames) {
@@ -103,7 +103,7 @@ TEST(IntrinsicsOnRig, FocalLengthsWithinTwoTenthsOfAPercent) {
   so.scene = "board_wobble";
   so.views = 36;
   ASSERT_TRUE(synth_session(so, dir));
-  const auto truth = *load_synth_truth(dir);
+  const auto truth = *load_ground_truth(dir);
   auto s = load_session(dir);
   ASSERT_TRUE(s);
   IntrinsicsOptions o;

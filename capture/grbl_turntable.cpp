@@ -74,14 +74,15 @@ Result<std::unique_ptr<GrblTurntable>> GrblTurntable::open(const std::string& pa
   if (auto st = t->wait_banner(o.banner_timeout); !st) {
     if (auto w = t->port_.write("\x18"); !w) return std::unexpected(w.error());
     if (auto st2 = t->wait_banner(o.banner_timeout); !st2)
-      return fail("no GRBL banner from '" + path + "' after a soft reset (is it a GRBL board at " +
-                  std::to_string(o.baud) + " baud?): " + st2.error().message);
+      return fail(st2.error().code, "no GRBL banner from '" + path + "' after a soft reset (is it a GRBL board at " +
+                  std::to_string(o.baud) + " baud?): " + st2.error().message, st2.error().sys_errno);
   }
   auto s = t->status();
   if (!s) return std::unexpected(s.error());
   if (s->state == "Alarm") {
     if (!o.unlock_alarm)
-      return fail("turntable on '" + path + "' starts in alarm state; check it, then unlock ($X or --unlock-alarm)");
+      return fail(ErrorCode::device_fault,
+                  "turntable on '" + path + "' starts in alarm state; check it, then unlock ($X or --unlock-alarm)");
     if (auto st = t->command("$X"); !st) return std::unexpected(st.error());
   }
   return t;
@@ -91,7 +92,7 @@ Status GrblTurntable::wait_banner(std::chrono::milliseconds timeout) {
   const auto deadline = std::chrono::steady_clock::now() + timeout;
   for (;;) {
     const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
-    if (left.count() <= 0) return fail("timed out waiting for the banner");
+    if (left.count() <= 0) return fail(ErrorCode::timeout, "timed out waiting for the banner");
     auto line = port_.read_line(left);
     if (!line) return std::unexpected(line.error());
     if (const GrblReply r = classify_grbl_reply(*line); r.kind == GrblReply::kBanner) {
@@ -103,9 +104,10 @@ Status GrblTurntable::wait_banner(std::chrono::milliseconds timeout) {
 
 Status GrblTurntable::check_async(const GrblReply& r) {
   if (r.kind == GrblReply::kAlarm)
-    return fail("turntable alarm " + std::to_string(r.code) + ": " + grbl_alarm_meaning(r.code));
+    return fail(ErrorCode::device_fault, "turntable alarm " + std::to_string(r.code) + ": " + grbl_alarm_meaning(r.code));
   if (r.kind == GrblReply::kBanner)
-    return fail("turntable reset itself (" + r.text + "): its position is lost; check power and cabling, "
+    return fail(ErrorCode::device_fault,
+                "turntable reset itself (" + r.text + "): its position is lost; check power and cabling, "
                 "then resume (the table is re-homed at the current position)");
   return {};
 }
@@ -151,13 +153,14 @@ Status GrblTurntable::command(const std::string& cmd) {
   for (;;) {
     auto line = port_.read_line(opt_.reply_timeout);
     if (!line) {
-      if (port_.timed_out(line.error())) return fail("no reply to '" + cmd + "' (lost ok?)");
+      if (line.error().is(ErrorCode::timeout)) return fail(ErrorCode::timeout, "no reply to '" + cmd + "' (lost ok?)");
       return std::unexpected(line.error());
     }
     const GrblReply r = classify_grbl_reply(*line, opt_.axis[0]);
     if (r.kind == GrblReply::kOk) return {};
     if (r.kind == GrblReply::kError)
-      return fail("turntable rejected '" + cmd + "': " + r.text + " (" + grbl_error_meaning(r.code) + ")");
+      return fail(ErrorCode::protocol,
+                  "turntable rejected '" + cmd + "': " + r.text + " (" + grbl_error_meaning(r.code) + ")");
     if (auto st = check_async(r); !st) return st;
     // "[MSG:...]", status reports, echoes and noise: keep waiting.
   }
@@ -174,7 +177,7 @@ Result<GrblStatus> GrblTurntable::status() {
       if (left.count() <= 0) break;
       auto line = port_.read_line(left);
       if (!line) {
-        if (!port_.timed_out(line.error())) return std::unexpected(line.error());
+        if (!line.error().is(ErrorCode::timeout)) return std::unexpected(line.error());
         timed_out = true;
         break;
       }
@@ -183,7 +186,7 @@ Result<GrblStatus> GrblTurntable::status() {
       if (r.kind == GrblReply::kStatus) return r.status;
     }
     if (++unanswered > opt_.retries)
-      return fail("turntable on '" + port_.path() + "' is silent: " + std::to_string(unanswered) +
+      return fail(ErrorCode::timeout, "turntable on '" + port_.path() + "' is silent: " + std::to_string(unanswered) +
                   " status requests unanswered");
   }
 }
@@ -204,13 +207,14 @@ Status GrblTurntable::move_to(double degrees) {
   std::snprintf(buf, sizeof buf, "G90 G0 %s%.4f", opt_.axis.c_str(), degrees);
   if (auto st = command(buf); !st) {
     // A lost "ok" is not fatal: the status poll below tells where the table is.
-    if (st.error().message.find("lost ok") == std::string::npos) return st;
+    if (!st.error().is(ErrorCode::timeout)) return st;
   }
   const auto deadline = std::chrono::steady_clock::now() + opt_.move_timeout;
   for (;;) {
     auto s = status();
     if (!s) return std::unexpected(s.error());
-    if (s->state == "Alarm") return fail("turntable entered alarm state during the move to " + std::string(buf + 7));
+    if (s->state == "Alarm")
+      return fail(ErrorCode::device_fault, "turntable entered alarm state during the move to " + std::string(buf + 7));
     if (s->state == "Idle") {
       if (std::abs(s->position - degrees) > 0.01) {
         // The command was lost before the board took it: send it again (absolute, so safe).
@@ -221,7 +225,7 @@ Status GrblTurntable::move_to(double degrees) {
       return {};
     }
     if (std::chrono::steady_clock::now() > deadline)
-      return fail("turntable did not reach " + std::to_string(degrees) + " deg within " +
+      return fail(ErrorCode::timeout, "turntable did not reach " + std::to_string(degrees) + " deg within " +
                   std::to_string(opt_.move_timeout.count() / 1000) + " s (state " + s->state + ")");
     std::this_thread::sleep_for(opt_.poll_interval);
   }

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <cerrno>
 #include <filesystem>
 
 #include "capture/grbl_sim.h"
@@ -140,6 +141,7 @@ TEST(GrblTurntable, ErrorIsMappedToItsMeaning) {
   auto st = r.table->move_to(15);
   ASSERT_FALSE(st);
   EXPECT_NE(st.error().message.find("error:20"), std::string::npos) << st.error().message;
+  EXPECT_TRUE(st.error().is(ErrorCode::protocol));
   EXPECT_NE(st.error().message.find("unsupported or invalid"), std::string::npos);
 }
 
@@ -152,6 +154,7 @@ TEST(GrblTurntable, AlarmIsAClearError) {
   auto st = r.table->move_to(30);
   ASSERT_FALSE(st);
   EXPECT_NE(st.error().message.find("alarm 2"), std::string::npos) << st.error().message;
+  EXPECT_TRUE(st.error().is(ErrorCode::device_fault));
   EXPECT_NE(st.error().message.find("soft limit"), std::string::npos);
 }
 
@@ -163,6 +166,7 @@ TEST(GrblTurntable, StartInAlarmNeedsUnlock) {
   auto t = GrblTurntable::open((*sim)->port(), fast());
   ASSERT_FALSE(t);
   EXPECT_NE(t.error().message.find("alarm state"), std::string::npos) << t.error().message;
+  EXPECT_TRUE(t.error().is(ErrorCode::device_fault));
   auto o = fast();
   o.unlock_alarm = true;
   auto sim2 = GrblSim::start(f);
@@ -193,6 +197,7 @@ TEST(GrblTurntable, SilenceIsRetriedThenReported) {
   auto st = r.table->move_to(20);
   ASSERT_FALSE(st);
   EXPECT_NE(st.error().message.find("silent"), std::string::npos) << st.error().message;
+  EXPECT_TRUE(st.error().is(ErrorCode::timeout));
 }
 
 TEST(GrblTurntable, UnplugIsReportedAsSuch) {
@@ -202,12 +207,16 @@ TEST(GrblTurntable, UnplugIsReportedAsSuch) {
   auto st = r.table->move_to(10);
   ASSERT_FALSE(st);
   EXPECT_NE(st.error().message.find("disconnected"), std::string::npos) << st.error().message;
+  EXPECT_TRUE(st.error().is(ErrorCode::disconnected));
+  EXPECT_NE(st.error().sys_errno, 0);
 }
 
 TEST(GrblTurntable, NoDeviceIsAClearError) {
   auto t = GrblTurntable::open("/dev/ttyUSB-none", fast());
   ASSERT_FALSE(t);
   EXPECT_NE(t.error().message.find("cannot open serial port"), std::string::npos) << t.error().message;
+  EXPECT_TRUE(t.error().is(ErrorCode::not_found));
+  EXPECT_EQ(t.error().sys_errno, ENOENT);
 }
 
 TEST(GrblTurntable, TranscriptRecordsAndReplays) {

@@ -57,12 +57,12 @@ Result<std::unique_ptr<LibcameraCamera>> LibcameraCamera::open(const std::string
   auto cams = s->manager->cameras();
   if (cams.empty()) {
     s->manager->stop();
-    return fail("libcamera: no camera found (is the camera connected and its pipeline supported?)");
+    return fail(ErrorCode::not_found, "libcamera: no camera found (is the camera connected and its pipeline supported?)");
   }
   s->camera = id.empty() ? cams.front() : s->manager->get(id);
   if (!s->camera) {
     s->manager->stop();
-    return fail("libcamera: no camera with id '" + id + "' (see `s2r devices`)");
+    return fail(ErrorCode::not_found, "libcamera: no camera with id '" + id + "' (see `s2r devices`)");
   }
   if (s->camera->acquire() != 0) return fail("libcamera: camera '" + s->camera->id() + "' is in use by another process");
   s->acquired = true;
@@ -75,7 +75,7 @@ Result<std::unique_ptr<LibcameraCamera>> LibcameraCamera::open(const std::string
   if (s->config->validate() == lc::CameraConfiguration::Invalid)
     return fail("libcamera: configuration " + sc.toString() + " is invalid for this camera");
   if (sc.pixelFormat != lc::formats::RGB888)
-    return fail("libcamera: camera cannot deliver RGB888 (offers " + sc.pixelFormat.toString() + ")");
+    return fail(ErrorCode::unsupported, "libcamera: camera cannot deliver RGB888 (offers " + sc.pixelFormat.toString() + ")");
   if (s->camera->configure(s->config.get()) != 0) return fail("libcamera: configure failed for " + sc.toString());
   s->width = static_cast<int>(sc.size.width);
   s->height = static_cast<int>(sc.size.height);
@@ -133,7 +133,7 @@ Result<CapturedFrame> LibcameraCamera::grab() {
   {
     std::unique_lock lock(s_->mu);
     if (!s_->cv.wait_for(lock, std::chrono::seconds(3), [&] { return !s_->completed.empty(); }))
-      return fail("libcamera: timed out after 3 s waiting for a frame");
+      return fail(ErrorCode::timeout, "libcamera: timed out after 3 s waiting for a frame");
     r = s_->completed.front();
     s_->completed.pop_front();
   }

@@ -26,23 +26,25 @@ speed_t baud_constant(int baud) {
   }
 }
 
-std::string errno_message(const std::string& path, int err) {
-  if (err == EIO || err == ENODEV || err == ENXIO)
-    return "'" + path + "': device disconnected (" + std::strerror(err) + ")";
-  return "'" + path + "': " + std::strerror(err);
+// A failed system call on `path`: its errno kept, a disconnect said as such.
+std::unexpected<Error> fail_errno(const std::string& prefix, const std::string& path, int err) {
+  const ErrorCode code = code_for_errno(err);
+  if (code == ErrorCode::disconnected)
+    return fail(code, prefix + "'" + path + "': device disconnected (" + std::strerror(err) + ")", err);
+  return fail(code, prefix + "'" + path + "': " + std::strerror(err), err);
 }
 
 }  // namespace
 
 Result<SerialPort> SerialPort::open(const std::string& path, int baud) {
   const speed_t speed = baud_constant(baud);
-  if (!speed) return fail("unsupported baud rate " + std::to_string(baud));
+  if (!speed) return fail(ErrorCode::unsupported, "unsupported baud rate " + std::to_string(baud));
   SerialPort p;
   p.path_ = path;
   p.fd_ = ::open(path.c_str(), O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
-  if (p.fd_ < 0) return fail("cannot open serial port " + errno_message(path, errno));
+  if (p.fd_ < 0) return fail_errno("cannot open serial port ", path, errno);
   termios tio{};
-  if (tcgetattr(p.fd_, &tio) != 0) return fail("'" + path + "' is not a serial port: " + std::strerror(errno));
+  if (tcgetattr(p.fd_, &tio) != 0) return fail(ErrorCode::unsupported, "'" + path + "' is not a serial port: " + std::strerror(errno), errno);
   cfmakeraw(&tio);
   tio.c_cflag &= ~static_cast<tcflag_t>(CSTOPB | PARENB | CRTSCTS);
   tio.c_cflag |= CS8 | CLOCAL | CREAD;
@@ -50,7 +52,7 @@ Result<SerialPort> SerialPort::open(const std::string& path, int baud) {
   tio.c_cc[VTIME] = 0;
   cfsetispeed(&tio, speed);
   cfsetospeed(&tio, speed);
-  if (tcsetattr(p.fd_, TCSANOW, &tio) != 0) return fail("cannot configure '" + path + "': " + std::strerror(errno));
+  if (tcsetattr(p.fd_, TCSANOW, &tio) != 0) return fail(ErrorCode::io, "cannot configure '" + path + "': " + std::strerror(errno), errno);
   return p;
 }
 
@@ -79,10 +81,10 @@ Status SerialPort::write(std::string_view bytes) {
       if (errno == EINTR) continue;
       if (errno == EAGAIN) {
         pollfd pfd{fd_, POLLOUT, 0};
-        if (::poll(&pfd, 1, 1000) <= 0) return fail("'" + path_ + "': write timed out");
+        if (::poll(&pfd, 1, 1000) <= 0) return fail(ErrorCode::timeout, "'" + path_ + "': write timed out");
         continue;
       }
-      return fail(errno_message(path_, errno));
+      return fail_errno("", path_, errno);
     }
     done += static_cast<size_t>(n);
   }
@@ -97,25 +99,25 @@ Result<std::string> SerialPort::read_line(std::chrono::milliseconds timeout) {
       return std::move(*line);
     }
     const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
-    if (left.count() <= 0) return fail("'" + path_ + "': timed out waiting for a reply");
+    if (left.count() <= 0) return fail(ErrorCode::timeout, "'" + path_ + "': timed out waiting for a reply");
     pollfd pfd{fd_, POLLIN, 0};
     int r = ::poll(&pfd, 1, static_cast<int>(left.count()));
     if (r < 0) {
       if (errno == EINTR) continue;
-      return fail(errno_message(path_, errno));
+      return fail_errno("", path_, errno);
     }
     if (r == 0) continue;
     if (pfd.revents & (POLLHUP | POLLERR | POLLNVAL)) {
       char probe;
-      if (::read(fd_, &probe, 1) <= 0) return fail(errno_message(path_, errno ? errno : EIO));
+      if (::read(fd_, &probe, 1) <= 0) return fail_errno("", path_, errno ? errno : EIO);
     }
     char buf[256];
     ssize_t n = ::read(fd_, buf, sizeof buf);
     if (n < 0) {
       if (errno == EAGAIN || errno == EINTR) continue;
-      return fail(errno_message(path_, errno));
+      return fail_errno("", path_, errno);
     }
-    if (n == 0) return fail(errno_message(path_, EIO));
+    if (n == 0) return fail_errno("", path_, EIO);
     lines_.feed(std::string_view(buf, static_cast<size_t>(n)));
   }
 }

@@ -45,13 +45,12 @@ class SerialPort {
 
   Status write(std::string_view bytes);
   // One line without its terminator ("\r\n" or "\n"). Bytes that are not
-  // printable ASCII are dropped (line noise). Errors: timeout ("timed out"),
-  // unplug (EIO/ENODEV: "device disconnected"), other errno.
+  // printable ASCII are dropped (line noise). Errors: ErrorCode::timeout,
+  // ErrorCode::disconnected (EIO/ENODEV/ENXIO), otherwise io with the errno.
   Result<std::string> read_line(std::chrono::milliseconds timeout);
   // Discard whatever is waiting in both directions.
   void flush();
   const std::string& path() const { return path_; }
-  bool timed_out(const Error& e) const { return e.message.find("timed out") != std::string::npos; }
 
   // Observer of every line in both directions (transcript recording).
   using Tap = std::function<void(char direction, const std::string& line)>;

@@ -1,4 +1,4 @@
-// The rig renders through the reference ray tracer (core/raytracer.h): the
+// The rig renders through the reference ray tracer (trace/raytracer.h): the
 // same Embree tracer as `s2r raytrace`, with the rig's strands as round
 // curves, its printed patterns as procedural albedo and its lamp as a
 // directional light without shadows that turns with the lab.
@@ -16,7 +16,7 @@
 #include "core/json_fields.h"
 #include "core/paths.h"
 #include "core/progress.h"
-#include "core/raytracer.h"
+#include "trace/raytracer.h"
 
 namespace s2r {
 namespace fs = std::filesystem;
@@ -346,37 +346,6 @@ Status SynthRig::write_geometry(const fs::path& dir) const {
   }
   for (uint32_t s : st.segments) ply += std::to_string(s) + " " + std::to_string(s + 1) + "\n";
   return write_file_atomic(dir / "strands.ply", ply);
-}
-
-namespace {
-
-}  // namespace
-
-Result<SynthTruth> load_synth_truth(const fs::path& session_dir) {
-  const fs::path path = session_dir / "ground_truth" / "rig.json";
-  auto j = parse_json_file(path);
-  if (!j) return std::unexpected(j.error());
-  try {
-    FieldReader doc(*j, path.string());
-    check_format_header(doc, "s2r.synth_truth", 1);
-    SynthTruth t;
-    t.scene = doc.string("scene");
-    t.layout = doc.string("layout") == "camera_centre" ? Layout::kCameraCentre : Layout::kObjectCentre;
-    t.color = intrinsics_from(doc.at("color_intrinsics"));
-    t.depth = intrinsics_from(doc.at("depth_intrinsics"));
-    t.color_from_depth = doc.rigid("color_from_depth");
-    t.axis_dir_camera = vec3_from(doc, "axis_dir_camera");
-    t.axis_point_camera = vec3_from(doc, "axis_point_camera");
-    if (doc.has("world_from_board")) t.world_from_board = doc.rigid("world_from_board");
-    FieldReader frames = doc.at("frames");
-    for (size_t i = 0; i < frames.array_size(); ++i) {
-      t.true_angle_deg.push_back(frames.index(i).number("table_angle_true_deg"));
-      t.world_from_camera.push_back(frames.index(i).rigid("world_from_camera"));
-    }
-    return t;
-  } catch (const FormatError& e) {
-    return fail(e.what());
-  }
 }
 
 Result<Report> synth_session(const SynthOptions& options, const fs::path& out) {

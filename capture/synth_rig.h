@@ -22,6 +22,7 @@
 
 #include <Eigen/Geometry>
 
+#include "capture/ground_truth.h"
 #include "capture/session.h"
 #include "core/camera_model.h"
 #include "core/image.h"
@@ -89,19 +90,6 @@ class SynthRig {
   explicit SynthRig(std::unique_ptr<Impl> impl);
   std::unique_ptr<Impl> impl_;
 };
-
-// What ground_truth/rig.json holds.
-struct SynthTruth {
-  std::string scene;
-  Layout layout = Layout::kObjectCentre;
-  Intrinsics color, depth;
-  Eigen::Isometry3d color_from_depth = Eigen::Isometry3d::Identity();
-  Eigen::Vector3d axis_dir_camera = Eigen::Vector3d::UnitZ(), axis_point_camera = Eigen::Vector3d::Zero();
-  std::vector<double> true_angle_deg;
-  std::optional<Eigen::Isometry3d> world_from_board;  // the "board" scene
-  std::vector<Eigen::Isometry3d> world_from_camera;  // colour camera, per frame
-};
-Result<SynthTruth> load_synth_truth(const std::filesystem::path& session_dir);
 
 // The whole job behind `s2r synth`: session + ground_truth/ in `out`.
 Result<Report> synth_session(const SynthOptions& options, const std::filesystem::path& out);

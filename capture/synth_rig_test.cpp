@@ -55,7 +55,7 @@ TEST_F(FuzzySession, LoadsBackWithEveryFrame) {
 // Exact depth of view i, unprojected and reprojected into view j, lands
 // where view j's exact depth says the same surface point is.
 TEST_F(FuzzySession, GroundTruthDepthReprojectsBetweenViews) {
-  auto truth = load_synth_truth(*dir_);
+  auto truth = load_ground_truth(*dir_);
   ASSERT_TRUE(truth) << truth.error().message;
   const Intrinsics& Kc = truth->color;
   double worst = 0, sum = 0;

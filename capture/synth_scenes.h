@@ -1,4 +1,4 @@
-// Scenes of the synthetic turntable rig (DESIGN.md section 14): geometry,
+// Scenes of the synthetic turntable rig (`s2r synth`): geometry,
 // appearance, camera placement and light. Rendering lives in synth_rig.cpp.
 #pragma once
 

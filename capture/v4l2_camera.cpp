@@ -24,10 +24,14 @@ v4l2_buffer mmap_buffer(uint32_t index) {
 }  // namespace
 
 Status V4l2Camera::fail_errno(const std::string& what, int err) const {
+  ErrorCode code = code_for_errno(err);
   std::string msg = path_ + ": " + what + " failed: " + std::strerror(err);
-  if (err == ENODEV || err == EIO || err == ENXIO) msg = path_ + ": camera disconnected during " + what;
-  if (err == EPROTO) msg += " (" + last_replay_error(*io_) + ")";
-  return fail(msg);
+  if (code == ErrorCode::disconnected) msg = path_ + ": camera disconnected during " + what;
+  if (err == EPROTO) {
+    code = ErrorCode::protocol;  // a replay that diverged from its recording
+    msg += " (" + last_replay_error(*io_) + ")";
+  }
+  return fail(code, msg, err);
 }
 
 Status V4l2Camera::set_control(uint32_t id, int value, const char* name) {
@@ -44,8 +48,10 @@ Status V4l2Camera::set_control(uint32_t id, int value, const char* name) {
 Result<std::unique_ptr<V4l2Camera>> V4l2Camera::open(std::unique_ptr<V4l2Io> io, const std::string& path,
                                                      const V4l2Config& cfg) {
   if (int r = io->open(path); r < 0) {
-    if (r == -ENOENT) return fail("no V4L2 device at '" + path + "' (is the camera plugged in? see `s2r devices`)");
-    return fail("cannot open '" + path + "': " + std::strerror(-r));
+    if (r == -ENOENT)
+      return fail(ErrorCode::not_found, "no V4L2 device at '" + path + "' (is the camera plugged in? see `s2r devices`)",
+                  ENOENT);
+    return fail(code_for_errno(-r), "cannot open '" + path + "': " + std::strerror(-r), -r);
   }
   std::unique_ptr<V4l2Camera> cam(new V4l2Camera(std::move(io), path, cfg));
   v4l2_capability cap{};
@@ -54,8 +60,8 @@ Result<std::unique_ptr<V4l2Camera>> V4l2Camera::open(std::unique_ptr<V4l2Io> io,
   const uint32_t caps = (cap.capabilities & V4L2_CAP_DEVICE_CAPS) ? cap.device_caps : cap.capabilities;
   // The kernel ends the name with a NUL; a damaged recording need not (fuzz).
   cam->card_.assign(reinterpret_cast<const char*>(cap.card), strnlen(reinterpret_cast<const char*>(cap.card), sizeof cap.card));
-  if (!(caps & V4L2_CAP_VIDEO_CAPTURE)) return fail(path + " (" + cam->card_ + ") is not a video capture device");
-  if (!(caps & V4L2_CAP_STREAMING)) return fail(path + " (" + cam->card_ + ") does not support streaming I/O");
+  if (!(caps & V4L2_CAP_VIDEO_CAPTURE)) return fail(ErrorCode::unsupported, path + " (" + cam->card_ + ") is not a video capture device");
+  if (!(caps & V4L2_CAP_STREAMING)) return fail(ErrorCode::unsupported, path + " (" + cam->card_ + ") does not support streaming I/O");
   for (uint32_t i = 0;; ++i) {
     v4l2_fmtdesc d{};
     d.index = i;
@@ -73,7 +79,7 @@ Result<std::unique_ptr<V4l2Camera>> V4l2Camera::open(std::unique_ptr<V4l2Io> io,
   if (!want || std::find(cam->formats_.begin(), cam->formats_.end(), want) == cam->formats_.end()) {
     std::string offered;
     for (uint32_t f : cam->formats_) offered += " " + fourcc_name(f);
-    return fail(path + ": none of the supported formats (YUYV, MJPG, GREY, Z16) is offered; device has:" + offered);
+    return fail(ErrorCode::unsupported, path + ": none of the supported formats (YUYV, MJPG, GREY, Z16) is offered; device has:" + offered);
   }
   v4l2_format fmt{};
   fmt.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
@@ -83,15 +89,15 @@ Result<std::unique_ptr<V4l2Camera>> V4l2Camera::open(std::unique_ptr<V4l2Io> io,
   fmt.fmt.pix.field = V4L2_FIELD_ANY;
   if (int r = cam->io_->ioctl(VIDIOC_S_FMT, &fmt); r < 0) return std::unexpected(cam->fail_errno("S_FMT", -r).error());
   if (fmt.fmt.pix.pixelformat != want)
-    return fail(path + ": device switched the format to " + fourcc_name(fmt.fmt.pix.pixelformat));
+    return fail(ErrorCode::protocol, path + ": device switched the format to " + fourcc_name(fmt.fmt.pix.pixelformat));
   // What the device says it gives is checked like any input: a size a
   // decoder can allocate, rows at least as long as the pixels they hold.
   const uint32_t fw = fmt.fmt.pix.width, fh = fmt.fmt.pix.height, bpl = fmt.fmt.pix.bytesperline;
   const uint32_t bytes_per_pixel = want == kFourccGREY ? 1 : want == kFourccMJPG ? 0 : 2;
   if (fw < 2 || fh < 1 || fw > 16384 || fh > 16384)
-    return fail(path + ": device reports a " + std::to_string(fw) + "x" + std::to_string(fh) + " frame");
+    return fail(ErrorCode::protocol, path + ": device reports a " + std::to_string(fw) + "x" + std::to_string(fh) + " frame");
   if (bpl != 0 && (bpl < bytes_per_pixel * fw || bpl > 16 * 16384))
-    return fail(path + ": device reports " + std::to_string(bpl) + " bytes per line for " + std::to_string(fw) +
+    return fail(ErrorCode::protocol, path + ": device reports " + std::to_string(bpl) + " bytes per line for " + std::to_string(fw) +
                 " pixels of " + fourcc_name(want));
   cam->fourcc_ = want;
   cam->width_ = static_cast<int>(fmt.fmt.pix.width);
@@ -128,7 +134,7 @@ Status V4l2Camera::start() {
   req.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
   req.memory = V4L2_MEMORY_MMAP;
   if (int r = io_->ioctl(VIDIOC_REQBUFS, &req); r < 0) return fail_errno("REQBUFS", -r);
-  if (req.count < 2) return fail(path_ + ": device granted " + std::to_string(req.count) + " buffer(s); 2 are needed");
+  if (req.count < 2) return fail(ErrorCode::protocol, path_ + ": device granted " + std::to_string(req.count) + " buffer(s); 2 are needed");
   for (uint32_t i = 0; i < req.count; ++i) {
     v4l2_buffer b = mmap_buffer(i);
     if (int r = io_->ioctl(VIDIOC_QUERYBUF, &b); r < 0) {
@@ -140,13 +146,13 @@ Status V4l2Camera::start() {
     const uint64_t frame_bytes = uint64_t(width_) * height_ * 4;
     if (b.length == 0 || b.length > std::max<uint64_t>(64u << 20, 4 * frame_bytes)) {
       stop();
-      return fail(path_ + ": device reports buffer " + std::to_string(i) + " of " + std::to_string(b.length) +
+      return fail(ErrorCode::protocol, path_ + ": device reports buffer " + std::to_string(i) + " of " + std::to_string(b.length) +
                   " bytes for " + std::to_string(width_) + "x" + std::to_string(height_) + " frames");
     }
     void* p = io_->mmap(b.length, b.m.offset);
     if (!p) {
       stop();
-      return fail(path_ + ": mmap of buffer " + std::to_string(i) + " failed");
+      return fail(ErrorCode::io, path_ + ": mmap of buffer " + std::to_string(i) + " failed");
     }
     buffers_.push_back({p, b.length});
   }
@@ -184,22 +190,22 @@ void V4l2Camera::stop() {
 }
 
 Result<CapturedFrame> V4l2Camera::grab() {
-  if (!streaming_) return fail(path_ + ": grab before start");
+  if (!streaming_) return fail(ErrorCode::invalid, path_ + ": grab before start");
   int eagain = 0;
   for (;;) {
     const int pr = io_->poll(cfg_.timeout_ms);
     if (pr == -EINTR) continue;
     if (pr < 0) return std::unexpected(fail_errno("poll", -pr).error());
-    if (pr == 0) return fail(path_ + ": timed out after " + std::to_string(cfg_.timeout_ms) + " ms waiting for a frame");
+    if (pr == 0) return fail(ErrorCode::timeout, path_ + ": timed out after " + std::to_string(cfg_.timeout_ms) + " ms waiting for a frame");
     v4l2_buffer b = mmap_buffer(0);
     const int r = io_->ioctl(VIDIOC_DQBUF, &b);
     if (r == -EAGAIN || r == -EINTR) {
       if (++eagain > cfg_.max_eagain)
-        return fail(path_ + ": " + std::to_string(eagain) + " EAGAINs in a row: the device signals frames it never delivers");
+        return fail(ErrorCode::protocol, path_ + ": " + std::to_string(eagain) + " EAGAINs in a row: the device signals frames it never delivers");
       continue;
     }
     if (r < 0) return std::unexpected(fail_errno("DQBUF", -r).error());
-    if (b.index >= buffers_.size()) return fail(path_ + ": device returned buffer " + std::to_string(b.index));
+    if (b.index >= buffers_.size()) return fail(ErrorCode::protocol, path_ + ": device returned buffer " + std::to_string(b.index));
     CapturedFrame f;
     f.fourcc = fourcc_;
     f.sequence = b.sequence;

@@ -152,6 +152,7 @@ TEST(V4l2Camera, FaultsAreClear) {
   f = cam->grab();
   ASSERT_FALSE(f);
   EXPECT_NE(f.error().message.find("disconnected"), std::string::npos) << f.error().message;
+  EXPECT_TRUE(f.error().is(ErrorCode::disconnected));
 
   V4l2SimFaults timeout;
   timeout.timeout_at = 0;
@@ -159,6 +160,7 @@ TEST(V4l2Camera, FaultsAreClear) {
   f = cam->grab();
   ASSERT_FALSE(f);
   EXPECT_NE(f.error().message.find("timed out"), std::string::npos) << f.error().message;
+  EXPECT_TRUE(f.error().is(ErrorCode::timeout));
 }
 
 // A stride shorter than a row made the Z16 decoder read past the frame

@@ -21,9 +21,12 @@ function(s2r_test name)
   cmake_parse_arguments(A "" "" "SRCS;LINK;LABELS" ${ARGN})
   add_executable(${name} ${A_SRCS})
   target_link_libraries(${name} PRIVATE ${A_LINK} GTest::gtest_main)
+  # The build's paths by call (core/paths.h), not as literals: the test's
+  # compile command is the same in every checkout, so ccache hits across them.
   target_compile_definitions(${name} PRIVATE
-    S2R_DATA_DIR="${S2R_DATA_DIR}" S2R_SOURCE_DIR="${CMAKE_SOURCE_DIR}"
-    S2R_BINARY_DIR="${CMAKE_BINARY_DIR}")
+    "S2R_DATA_DIR=::s2r::build_data_dir()" "S2R_SOURCE_DIR=::s2r::build_source_dir()"
+    "S2R_BINARY_DIR=::s2r::build_binary_dir()")
+  target_compile_options(${name} PRIVATE -include core/paths.h)
   s2r_warnings(${name})
   add_test(NAME ${name} COMMAND ${name})
   set(labels unit ${A_LABELS})

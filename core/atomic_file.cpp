@@ -19,7 +19,7 @@ std::function<int(const fs::path&)> g_fault_hook;
 
 Status injected_fault(const fs::path& path) {
   if (!g_fault_hook) return {};
-  if (int err = g_fault_hook(path)) return fail("write to '" + path.string() + "' failed: " + errno_text(err));
+  if (int err = g_fault_hook(path)) return fail(ErrorCode::io, "write to '" + path.string() + "' failed: " + errno_text(err), err);
   return {};
 }
 
@@ -32,11 +32,11 @@ fs::path temp_name_for(const fs::path& path) {
 
 Status fsync_path(const fs::path& path, int flags) {
   int fd = ::open(path.c_str(), flags | O_CLOEXEC);
-  if (fd < 0) return fail("cannot open '" + path.string() + "' to sync: " + errno_text(errno));
+  if (fd < 0) return fail(ErrorCode::io, "cannot open '" + path.string() + "' to sync: " + errno_text(errno), errno);
   int rc = ::fsync(fd);
   int err = errno;
   ::close(fd);
-  if (rc != 0) return fail("fsync of '" + path.string() + "' failed: " + errno_text(err));
+  if (rc != 0) return fail(ErrorCode::io, "fsync of '" + path.string() + "' failed: " + errno_text(err), err);
   return {};
 }
 
@@ -47,7 +47,7 @@ Status write_all(int fd, std::string_view bytes, const fs::path& path) {
     ssize_t n = ::write(fd, bytes.data() + done, bytes.size() - done);
     if (n < 0) {
       if (errno == EINTR) continue;
-      return fail("write to '" + path.string() + "' failed: " + errno_text(errno));
+      return fail(ErrorCode::io, "write to '" + path.string() + "' failed: " + errno_text(errno), errno);
     }
     done += static_cast<size_t>(n);
   }
@@ -82,7 +82,7 @@ Status write_via_temp(const fs::path& path,
   };
   if (auto st = write_to(tmp); !st) {
     cleanup();
-    return fail("writing '" + path.string() + "': " + st.error().message);
+    return fail_with_context(st.error(), "writing '" + path.string() + "'");
   }
   if (auto st = fsync_path(tmp, O_RDONLY); !st) {
     cleanup();
@@ -91,8 +91,8 @@ Status write_via_temp(const fs::path& path,
   if (::rename(tmp.c_str(), path.c_str()) != 0) {
     int err = errno;
     cleanup();
-    return fail("cannot rename '" + tmp.string() + "' to '" + path.string() +
-                "': " + errno_text(err));
+    return fail(ErrorCode::io, "cannot rename '" + tmp.string() + "' to '" + path.string() + "': " + errno_text(err),
+                err);
   }
   return sync_directory(path.parent_path());
 }
@@ -100,12 +100,12 @@ Status write_via_temp(const fs::path& path,
 Status write_file_atomic(const fs::path& path, std::string_view bytes) {
   return write_via_temp(path, [&](const fs::path& tmp) -> Status {
     int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-    if (fd < 0) return fail("cannot create '" + tmp.string() + "': " + errno_text(errno));
+    if (fd < 0) return fail(ErrorCode::io, "cannot create '" + tmp.string() + "': " + errno_text(errno), errno);
     if (auto st = write_all(fd, bytes, tmp); !st) {
       ::close(fd);
       return st;
     }
-    if (::close(fd) != 0) return fail("close of '" + tmp.string() + "' failed: " + errno_text(errno));
+    if (::close(fd) != 0) return fail(ErrorCode::io, "close of '" + tmp.string() + "' failed: " + errno_text(errno), errno);
     return {};
   });
 }
@@ -114,7 +114,7 @@ Status append_line_durable(const fs::path& path, std::string_view line) {
   if (auto st = ensure_parent(path); !st) return st;
   if (auto st = injected_fault(path); !st) return st;
   int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_APPEND | O_CLOEXEC, 0644);
-  if (fd < 0) return fail("cannot open journal '" + path.string() + "': " + errno_text(errno));
+  if (fd < 0) return fail(ErrorCode::io, "cannot open journal '" + path.string() + "': " + errno_text(errno), errno);
   std::string buf(line);
   buf.push_back('\n');
   if (auto st = write_all(fd, buf, path); !st) {
@@ -124,7 +124,7 @@ Status append_line_durable(const fs::path& path, std::string_view line) {
   int rc = ::fsync(fd);
   int err = errno;
   ::close(fd);
-  if (rc != 0) return fail("fsync of '" + path.string() + "' failed: " + errno_text(err));
+  if (rc != 0) return fail(ErrorCode::io, "fsync of '" + path.string() + "' failed: " + errno_text(err), err);
   return {};
 }
 
@@ -132,12 +132,12 @@ Result<std::string> read_file(const fs::path& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) {
     std::error_code ec;
-    if (!fs::exists(path, ec)) return fail("'" + path.string() + "': file not found");
-    return fail("'" + path.string() + "': cannot open for reading");
+    if (!fs::exists(path, ec)) return fail(ErrorCode::not_found, "'" + path.string() + "': file not found");
+    return fail(ErrorCode::io, "'" + path.string() + "': cannot open for reading");
   }
   std::ostringstream ss;
   ss << in.rdbuf();
-  if (in.bad()) return fail("'" + path.string() + "': read error");
+  if (in.bad()) return fail(ErrorCode::io, "'" + path.string() + "': read error");
   return ss.str();
 }
 

@@ -29,7 +29,7 @@ namespace {
 template <class T>
 Result<Image<T>> read_as(const fs::path& path, oiio::TypeDesc type, ExrAttributes* attributes = nullptr) {
   std::error_code ec;
-  if (!fs::exists(path, ec)) return fail("'" + path.string() + "': image file not found");
+  if (!fs::exists(path, ec)) return fail(ErrorCode::not_found, "'" + path.string() + "': image file not found");
   auto in = oiio::ImageInput::open(path.string());
   if (!in) return fail("'" + path.string() + "': cannot open image: " + oiio::geterror());
   const oiio::ImageSpec& spec = in->spec();
@@ -44,7 +44,7 @@ Result<Image<T>> read_as(const fs::path& path, oiio::TypeDesc type, ExrAttribute
   std::string err = in->geterror();
   in->close();
   if (!ok || !err.empty())
-    return fail("'" + path.string() + "': truncated or corrupt image (" +
+    return fail(ErrorCode::format, "'" + path.string() + "': truncated or corrupt image (" +
                 (err.empty() ? std::string("read failed") : err) + ")");
   return img;
 }
@@ -251,7 +251,7 @@ std::optional<Result<ImageU16>> read_png_gray16(const fs::path& path) {
   if (r.png) r.info = png_create_info_struct(r.png);
   if (!r.png || !r.info) return fail("'" + path.string() + "': cannot set up libpng");
   auto corrupt = [&](const std::string& why) -> Result<ImageU16> {
-    return fail("'" + path.string() + "': truncated or corrupt image (" + why + ")");
+    return fail(ErrorCode::format, "'" + path.string() + "': truncated or corrupt image (" + why + ")");
   };
   png_uint_32 width = 0, height = 0;
   int depth = 0, colour = 0;
@@ -296,7 +296,7 @@ Status write_as(const fs::path& path, const Image<T>& image, oiio::TypeDesc type
 
 Result<ImageInfo> probe_image(const fs::path& path) {
   std::error_code ec;
-  if (!fs::exists(path, ec)) return fail("'" + path.string() + "': image file not found");
+  if (!fs::exists(path, ec)) return fail(ErrorCode::not_found, "'" + path.string() + "': image file not found");
   auto in = oiio::ImageInput::open(path.string());
   if (!in) return fail("'" + path.string() + "': cannot open image: " + oiio::geterror());
   const auto& s = in->spec();

@@ -124,14 +124,14 @@ Eigen::Isometry3d FieldReader::rigid(std::string_view key) const {
 Result<nlohmann::json> parse_json_file(const std::filesystem::path& path) {
   auto text = read_file(path);
   if (!text) return std::unexpected(text.error());
-  if (text->empty()) return fail(path.string() + ": file is empty");
+  if (text->empty()) return fail(ErrorCode::format, path.string() + ": file is empty");
   try {
     return nlohmann::json::parse(*text);
   } catch (const nlohmann::json::parse_error& e) {
-    return fail(path.string() + ": not valid JSON (truncated or corrupt?) at byte " +
+    return fail(ErrorCode::format, path.string() + ": not valid JSON (truncated or corrupt?) at byte " +
                 std::to_string(e.byte) + ": " + e.what());
   } catch (const nlohmann::json::exception& e) {  // e.g. a number beyond double's range
-    return fail(path.string() + ": not valid JSON: " + e.what());
+    return fail(ErrorCode::format, path.string() + ": not valid JSON: " + e.what());
   }
 }
 

@@ -1,15 +1,18 @@
-// The only translation unit of core/ that includes PCL.
-#include <pcl/PolygonMesh.h>
-#include <pcl/conversions.h>
-#include <pcl/io/ply_io.h>
-#include <pcl/point_types.h>
+// The only translation unit of core/ that includes PCL: PLY files are parsed
+// by PCL's PLY parser (libpcl_io_ply, the parser PCL's PLYReader is built on,
+// without the rest of libpcl_io and the VTK libraries it loads).
+#include <pcl/io/ply/ply_parser.h>
 
 #include <algorithm>
 #include <bit>
 #include <cstring>
 #include <cctype>
 #include <cmath>
+#include <cstdint>
 #include <fstream>
+#include <functional>
+#include <limits>
+#include <tuple>
 #include <string>
 #include <vector>
 
@@ -224,64 +227,191 @@ Status check_ply_header(const fs::path& path) {
   return {};
 }
 
-// PCL's conversion to typed points trusts the blob the reader made of the
-// header; check it first: vertices present, x/y/z present, every property
-// inside the vertex record, and as many bytes as the header promises.
-Status check_vertices(const pcl::PCLPointCloud2& b, const fs::path& path) {
+// What a PLY file holds for us, read by PCL's parser with the semantics of
+// PCL's PLYReader: float x/y/z (any other type of them is an error here;
+// PLYReader's conversion left such points at 0), red/green/blue (or
+// diffuse_*) bytes, faces, and the organised grid of a range scan (obj_info
+// num_cols x num_rows; a range_grid element names each cell's vertex).
+struct PlyContents {
+  uint64_t width = 0, height = 0;  // the organised size; height 1 for a plain cloud
+  uint64_t vertices = 0;           // vertex records read
+  std::vector<float> xyz;          // 3 per vertex record
+  std::vector<uint8_t> rgb;        // 3 per vertex record, when has_rgb
+  bool has_x = false, has_y = false, has_z = false, has_rgb = false;
+  std::vector<std::vector<int64_t>> faces;
+  std::vector<int64_t> grid;       // per range_grid cell: its first vertex index, -1 none
+  std::string bad;                 // a property we refuse, named
+};
+
+Result<PlyContents> parse_ply(const fs::path& path, bool want_faces) {
+  namespace ply = pcl::io::ply;
+  PlyContents c;
+  std::string parser_error;
+  ply::ply_parser parser;
+  parser.info_callback([](std::size_t, const std::string&) {});
+  parser.warning_callback([](std::size_t, const std::string&) {});
+  parser.error_callback([&](std::size_t line, const std::string& message) {
+    if (parser_error.empty()) parser_error = "line " + std::to_string(line) + ": " + message;
+  });
+  parser.obj_info_callback([&](const std::string& line) {
+    // "obj_info num_cols 512": check_ply_header made them decimal.
+    std::vector<std::string> w;
+    for (size_t i = 0; i < line.size();) {
+      const size_t sp = std::min(line.find(' ', i), line.size());
+      if (sp > i) w.push_back(line.substr(i, sp - i));
+      i = sp + 1;
+    }
+    if (w.size() >= 3 && (w[1] == "num_cols" || w[1] == "num_rows"))
+      (w[1] == "num_cols" ? c.width : c.height) = std::strtoull(w[2].c_str(), nullptr, 10);
+  });
+  uint64_t record = 0;  // the vertex record being read
+  int channel = 0;      // red, green, blue of that record
+  parser.element_definition_callback([&](const std::string& name, std::size_t count) -> ply::ply_parser::element_callbacks_type {
+    if (name == "vertex") {
+      if (c.width == 0 || c.height == 0) c.width = count, c.height = 1;
+      c.xyz.reserve(3 * count);
+      return {[&] {
+                record = c.vertices;
+                channel = 0;
+                c.xyz.insert(c.xyz.end(), 3, 0.0f);
+                if (c.has_rgb) c.rgb.insert(c.rgb.end(), 3, uint8_t(0));
+              },
+              [&] { ++c.vertices; }};
+    }
+    if (name == "face" && want_faces) {
+      c.faces.reserve(count);
+      return {std::function<void()>([&] { c.faces.emplace_back(); }), std::function<void()>{}};
+    }
+    if (name == "range_grid") {
+      c.grid.reserve(count);
+      return {std::function<void()>([&] { c.grid.push_back(-1); }), std::function<void()>{}};
+    }
+    return {};
+  });
+  // Scalars: x, y, z as float; colour bytes; anything else is read and dropped.
+  ply::ply_parser::scalar_property_definition_callbacks_type scalars;
+  auto axis_of = [](const std::string& p) { return p == "x" ? 0 : p == "y" ? 1 : p == "z" ? 2 : -1; };
+  auto colour_of = [](const std::string& p) {
+    if (p == "red" || p == "diffuse_red") return 0;
+    if (p == "green" || p == "diffuse_green") return 1;
+    if (p == "blue" || p == "diffuse_blue") return 2;
+    return -1;
+  };
+  ply::ply_parser::at<ply::float32>(scalars) = [&](const std::string& element, const std::string& property) {
+    const int k = axis_of(property);
+    if (element != "vertex" || k < 0) return std::function<void(ply::float32)>{};
+    (k == 0 ? c.has_x : k == 1 ? c.has_y : c.has_z) = true;
+    return std::function<void(ply::float32)>([&, k](ply::float32 v) { c.xyz[3 * record + size_t(k)] = v; });
+  };
+  ply::ply_parser::at<ply::uint8>(scalars) = [&](const std::string& element, const std::string& property) {
+    const int k = colour_of(property);
+    if (element != "vertex" || k < 0) return std::function<void(ply::uint8)>{};
+    c.has_rgb = true;
+    return std::function<void(ply::uint8)>([&, k](ply::uint8 v) {
+      if (c.rgb.size() < 3 * (record + 1)) c.rgb.resize(3 * (record + 1), 0);
+      c.rgb[3 * record + size_t(k)] = v;
+    });
+  };
+  auto refuse_axes = [&]<class T>(const std::string& element, const std::string& property) {
+    if (element == "vertex" && axis_of(property) >= 0 && c.bad.empty())
+      c.bad = "vertex property '" + property + "' is not a float (only float x, y, z are read)";
+    return std::function<void(T)>{};
+  };
+  ply::ply_parser::at<ply::int8>(scalars) = [&](const std::string& e, const std::string& p) { return refuse_axes.template operator()<ply::int8>(e, p); };
+  ply::ply_parser::at<ply::int16>(scalars) = [&](const std::string& e, const std::string& p) { return refuse_axes.template operator()<ply::int16>(e, p); };
+  ply::ply_parser::at<ply::uint16>(scalars) = [&](const std::string& e, const std::string& p) { return refuse_axes.template operator()<ply::uint16>(e, p); };
+  ply::ply_parser::at<ply::int32>(scalars) = [&](const std::string& e, const std::string& p) { return refuse_axes.template operator()<ply::int32>(e, p); };
+  ply::ply_parser::at<ply::uint32>(scalars) = [&](const std::string& e, const std::string& p) { return refuse_axes.template operator()<ply::uint32>(e, p); };
+  ply::ply_parser::at<ply::float64>(scalars) = [&](const std::string& e, const std::string& p) { return refuse_axes.template operator()<ply::float64>(e, p); };
+  parser.scalar_property_definition_callbacks(scalars);
+  // Lists: a face's vertex indices, a range grid cell's vertices.
+  ply::ply_parser::list_property_definition_callbacks_type lists;
+  auto index_list = [&]<class S, class T>(const std::string& element, const std::string& property) {
+    using Callbacks = std::tuple<std::function<void(S)>, std::function<void(T)>, std::function<void()>>;
+    if (property != "vertex_indices" && property != "vertex_index") return Callbacks{};
+    if (element == "face" && want_faces)
+      return Callbacks(std::function<void(S)>{}, std::function<void(T)>([&](T i) { c.faces.back().push_back(int64_t(i)); }),
+                       std::function<void()>{});
+    if (element == "range_grid")
+      return Callbacks(std::function<void(S)>{}, std::function<void(T)>([&](T i) {
+                         if (c.grid.back() < 0) c.grid.back() = int64_t(i);
+                       }),
+                       std::function<void()>{});
+    return Callbacks{};
+  };
+  ply::ply_parser::at<ply::uint8, ply::int32>(lists) = [&](const std::string& e, const std::string& p) { return index_list.template operator()<ply::uint8, ply::int32>(e, p); };
+  ply::ply_parser::at<ply::uint8, ply::uint32>(lists) = [&](const std::string& e, const std::string& p) { return index_list.template operator()<ply::uint8, ply::uint32>(e, p); };
+  ply::ply_parser::at<ply::uint16, ply::int32>(lists) = [&](const std::string& e, const std::string& p) { return index_list.template operator()<ply::uint16, ply::int32>(e, p); };
+  ply::ply_parser::at<ply::uint16, ply::uint32>(lists) = [&](const std::string& e, const std::string& p) { return index_list.template operator()<ply::uint16, ply::uint32>(e, p); };
+  ply::ply_parser::at<ply::uint32, ply::int32>(lists) = [&](const std::string& e, const std::string& p) { return index_list.template operator()<ply::uint32, ply::int32>(e, p); };
+  ply::ply_parser::at<ply::uint32, ply::uint32>(lists) = [&](const std::string& e, const std::string& p) { return index_list.template operator()<ply::uint32, ply::uint32>(e, p); };
+  parser.list_property_definition_callbacks(lists);
+
   const std::string at = "'" + path.string() + "': ";
-  const uint64_t n = uint64_t(b.width) * b.height;
-  if (n == 0) return fail(at + "PLY has no vertices");
-  for (const char* axis : {"x", "y", "z"})
-    if (std::none_of(b.fields.begin(), b.fields.end(), [&](const pcl::PCLPointField& f) { return f.name == axis; }))
-      return fail(at + "PLY vertices have no '" + axis + "' property");
-  for (const auto& f : b.fields) {
-    const uint64_t size = uint64_t(pcl::getFieldSize(f.datatype)) * std::max<uint32_t>(f.count, 1);
-    if (size == 0 || f.offset + size > b.point_step)
-      return fail(at + "PLY property '" + f.name + "' lies outside the vertex record");
+  if (!parser.parse(path.string()))
+    return fail(ErrorCode::format, at + "cannot parse PLY (truncated or corrupt?)" +
+                                       (parser_error.empty() ? "" : ": " + parser_error));
+  if (!c.bad.empty()) return fail(ErrorCode::format, at + "PLY " + c.bad);
+  if (c.vertices == 0 || c.width * c.height == 0) return fail(ErrorCode::format, at + "PLY has no vertices");
+  for (const auto& [has, axis] : {std::pair{c.has_x, "x"}, {c.has_y, "y"}, {c.has_z, "z"}})
+    if (!has) return fail(ErrorCode::format, at + "PLY vertices have no '" + axis + "' property");
+  c.xyz.resize(3 * c.vertices);
+  if (c.has_rgb) c.rgb.resize(3 * c.vertices, 0);
+  // A range grid other than one cell per vertex puts vertex grid[r] in cell
+  // r, and an empty cell is not a number (PLYReader's reorganisation).
+  if (!c.grid.empty() && c.grid.size() != c.vertices) {
+    std::vector<float> xyz(3 * c.grid.size(), std::numeric_limits<float>::quiet_NaN());
+    std::vector<uint8_t> rgb(c.has_rgb ? 3 * c.grid.size() : 0, 0);
+    for (size_t r = 0; r < c.grid.size(); ++r) {
+      const int64_t v = c.grid[r];
+      if (v < 0) continue;
+      if (uint64_t(v) >= c.vertices)
+        return fail(ErrorCode::format, at + "PLY range_grid cell " + std::to_string(r) + " names vertex " +
+                                           std::to_string(v) + " of " + std::to_string(c.vertices));
+      std::copy_n(&c.xyz[3 * size_t(v)], 3, &xyz[3 * r]);
+      if (c.has_rgb) std::copy_n(&c.rgb[3 * size_t(v)], 3, &rgb[3 * r]);
+    }
+    c.xyz.swap(xyz);
+    c.rgb.swap(rgb);
+    c.vertices = c.grid.size();
   }
-  if (b.row_step != uint64_t(b.width) * b.point_step || b.data.size() < n * b.point_step)
-    return fail(at + "PLY vertex data is shorter than its header says (truncated?)");
-  return {};
+  // The organised size holds exactly the records read (check_ply_header
+  // made num_cols x num_rows the vertex or the grid's cell count).
+  if (c.width * c.height != c.vertices)
+    return fail(ErrorCode::format, at + "PLY vertex data is shorter than its header says (truncated?)");
+  return c;
 }
 }  // namespace
 
 Result<Mesh> read_ply_mesh(const fs::path& path) {
   if (auto st = check_exists(path); !st) return std::unexpected(st.error());
   if (auto st = check_ply_header(path); !st) return std::unexpected(st.error());
-  pcl::PolygonMesh pm;
-  pcl::PLYReader reader;
-  if (reader.read(path.string(), pm) < 0)
-    return fail("'" + path.string() + "': cannot parse PLY (truncated or corrupt?)");
-  if (auto st = check_vertices(pm.cloud, path); !st) return std::unexpected(st.error());
-  pcl::PointCloud<pcl::PointXYZ> cloud;
-  pcl::fromPCLPointCloud2(pm.cloud, cloud);
+  auto c = parse_ply(path, true);
+  if (!c) return std::unexpected(c.error());
   Mesh m;
-  m.vertices.reserve(cloud.size());
-  for (const auto& p : cloud.points) {
-    if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z))
-      return fail("'" + path.string() + "': vertex " + std::to_string(m.vertices.size()) +
-                  " is not finite");
-    m.vertices.emplace_back(p.x, p.y, p.z);
+  m.vertices.reserve(c->vertices);
+  for (size_t i = 0; i < c->vertices; ++i) {
+    const float x = c->xyz[3 * i], y = c->xyz[3 * i + 1], z = c->xyz[3 * i + 2];
+    if (!std::isfinite(x) || !std::isfinite(y) || !std::isfinite(z))
+      return fail(ErrorCode::format, "'" + path.string() + "': vertex " + std::to_string(i) + " is not finite");
+    m.vertices.emplace_back(x, y, z);
   }
-  const int n = static_cast<int>(m.vertices.size());
-  for (size_t i = 0; i < pm.polygons.size(); ++i) {
-    const auto& idx = pm.polygons[i].vertices;
+  const int64_t n = int64_t(m.vertices.size());
+  for (size_t i = 0; i < c->faces.size(); ++i) {
+    const auto& idx = c->faces[i];
     if (idx.size() < 3) continue;
-    for (size_t k = 0; k < idx.size(); ++k)
-      if (static_cast<int>(idx[k]) < 0 || static_cast<int>(idx[k]) >= n)
-        return fail("'" + path.string() + "': face " + std::to_string(i) +
-                    " refers to vertex " + std::to_string(idx[k]) + " of " + std::to_string(n));
+    for (const int64_t k : idx)
+      // PLYReader kept indices as int32: an unsigned one past 2^31 was negative.
+      if (int32_t(k) < 0 || int32_t(k) >= n)
+        return fail(ErrorCode::format, "'" + path.string() + "': face " + std::to_string(i) + " refers to vertex " +
+                                           std::to_string(uint32_t(k)) + " of " + std::to_string(n));
     for (size_t k = 1; k + 1 < idx.size(); ++k)  // fan-triangulate polygons
-      m.faces.emplace_back(idx[0], idx[k], idx[k + 1]);
+      m.faces.emplace_back(int(idx[0]), int(idx[k]), int(idx[k + 1]));
   }
-  if (m.vertices.empty()) return fail("'" + path.string() + "': PLY has no vertices");
-  bool has_color = false;
-  for (const auto& field : pm.cloud.fields) has_color |= field.name == "rgb" || field.name == "rgba";
-  if (has_color) {
-    pcl::PointCloud<pcl::PointXYZRGB> rgb;
-    pcl::fromPCLPointCloud2(pm.cloud, rgb);
-    m.colors.reserve(rgb.size());
-    for (const auto& p : rgb.points) m.colors.emplace_back(p.r / 255.0f, p.g / 255.0f, p.b / 255.0f);
+  if (c->has_rgb) {
+    m.colors.reserve(c->vertices);
+    for (size_t i = 0; i < c->vertices; ++i)
+      m.colors.emplace_back(c->rgb[3 * i] / 255.0f, c->rgb[3 * i + 1] / 255.0f, c->rgb[3 * i + 2] / 255.0f);
   }
   return m;
 }
@@ -289,36 +419,28 @@ Result<Mesh> read_ply_mesh(const fs::path& path) {
 Result<PointScan> read_ply_points(const fs::path& path) {
   if (auto st = check_exists(path); !st) return std::unexpected(st.error());
   if (auto st = check_ply_header(path); !st) return std::unexpected(st.error());
-  pcl::PCLPointCloud2 blob;
-  pcl::PLYReader reader;
-  Eigen::Vector4f origin;
-  Eigen::Quaternionf orientation;
-  int version = 0;
-  if (reader.read(path.string(), blob, origin, orientation, version) < 0)
-    return fail("'" + path.string() + "': cannot parse PLY (truncated or corrupt?)");
-  if (auto st = check_vertices(blob, path); !st) return std::unexpected(st.error());
-  pcl::PointCloud<pcl::PointXYZ> cloud;
-  pcl::fromPCLPointCloud2(blob, cloud);
+  auto c = parse_ply(path, false);
+  if (!c) return std::unexpected(c.error());
   PointScan scan;
-  const bool organized = cloud.height > 1;
+  const bool organized = c->height > 1;
   if (organized) {
-    scan.grid_width = static_cast<int>(cloud.width);
-    scan.grid_height = static_cast<int>(cloud.height);
-    scan.grid_index.assign(cloud.size(), -1);
+    scan.grid_width = static_cast<int>(c->width);
+    scan.grid_height = static_cast<int>(c->height);
+    scan.grid_index.assign(c->vertices, -1);
   }
-  for (size_t i = 0; i < cloud.size(); ++i) {
-    const auto& p = cloud.points[i];
-    if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) continue;
+  for (size_t i = 0; i < c->vertices; ++i) {
+    const float x = c->xyz[3 * i], y = c->xyz[3 * i + 1], z = c->xyz[3 * i + 2];
+    if (!std::isfinite(x) || !std::isfinite(y) || !std::isfinite(z)) continue;
     if (organized) scan.grid_index[i] = static_cast<int32_t>(scan.points.size());
-    scan.points.emplace_back(p.x, p.y, p.z);
+    scan.points.emplace_back(x, y, z);
   }
-  if (scan.points.empty()) return fail("'" + path.string() + "': PLY has no finite points");
+  if (scan.points.empty()) return fail(ErrorCode::format, "'" + path.string() + "': PLY has no finite points");
   return scan;
 }
 
 // Binary PLY in the machine's byte order, written from one buffer (PCL's
 // writer makes a vector per face and writes field by field: 18 ms for the
-// rig bunny's 63k-triangle patch mesh). read_ply_mesh (PCL) reads it back.
+// rig bunny's 63k-triangle patch mesh). read_ply_mesh reads it back.
 Status write_ply_mesh(const fs::path& path, const Mesh& mesh) {
   for (const auto& f : mesh.faces)
     for (int k = 0; k < 3; ++k)
@@ -349,13 +471,21 @@ Status write_ply_mesh(const fs::path& path, const Mesh& mesh) {
   return write_file_atomic(path, buf);
 }
 
+// Binary PLY of float x, y, z in the machine's byte order, from one buffer.
 Status write_ply_points(const fs::path& path, const PointScan& scan) {
-  return write_via_temp(path, [&](const fs::path& tmp) -> Status {
-    pcl::PointCloud<pcl::PointXYZ> cloud;
-    for (const auto& v : scan.points) cloud.emplace_back(v.x(), v.y(), v.z());
-    if (pcl::io::savePLYFileBinary(tmp.string(), cloud) < 0) return fail("PCL could not write PLY");
-    return {};
-  });
+  const std::string header = std::string("ply\nformat ") +
+                             (std::endian::native == std::endian::little ? "binary_little_endian" : "binary_big_endian") +
+                             " 1.0\nelement vertex " + std::to_string(scan.points.size()) +
+                             "\nproperty float x\nproperty float y\nproperty float z\nend_header\n";
+  std::string buf(header.size() + scan.points.size() * 3 * sizeof(float), '\0');
+  std::memcpy(buf.data(), header.data(), header.size());
+  char* out = buf.data() + header.size();
+  for (const auto& v : scan.points) {
+    const float xyz[3] = {v.x(), v.y(), v.z()};
+    std::memcpy(out, xyz, sizeof xyz);
+    out += sizeof xyz;
+  }
+  return write_file_atomic(path, buf);
 }
 
 }  // namespace s2r

@@ -23,4 +23,12 @@ Status check_links_inside(const std::filesystem::path& root, size_t max_entries 
 // Where the real data sets live: $S2R_DATA, else the build-time default.
 std::filesystem::path data_dir();
 
+// Where this build was configured from and into, and its data folder: what
+// tests and benches find their inputs by. Only core/paths.cpp is compiled
+// with these paths, so that every other translation unit's compile command is
+// the same in any checkout (ccache hits across clones). Empty where unknown.
+const char* build_source_dir();
+const char* build_binary_dir();
+const char* build_data_dir();
+
 }  // namespace s2r

@@ -1,4 +1,4 @@
-// Per-camera depth (DESIGN.md section 6.2): the fused geometry seen from every
+// Per-camera depth for microfacet billboarding: the fused geometry seen from every
 // input camera, so each texel has its colour and the distance d to the object
 // along its ray. Two ways to the same image: a z-buffer rasterizer whose
 // per-pixel test is the exact ray-triangle test (what reconstruct uses: its

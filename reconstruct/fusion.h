@@ -1,4 +1,5 @@
-// Fusion of registered views into a sparse volume (DESIGN.md section 6.1).
+// Fusion of registered views into a sparse volume (Curless and Levoy, "A volumetric method for
+// building complex models from range images", 1996).
 // OpenVDB is confined to fusion.cpp.
 //
 // Depth: a truncated signed distance per voxel (projective, z along the

@@ -1,5 +1,5 @@
 // Fusion, facets and the error bound on analytic scenes (a sphere seen by a
-// ring of exact depth cameras), and the stiff cases of DESIGN.md section 12:
+// ring of exact depth cameras), and the stiff cases (docs/testing.md):
 // a view with no valid depth, one camera only, a facet no camera sees, w of
 // the whole object, a voxel at the volume's border.
 #include <gtest/gtest.h>

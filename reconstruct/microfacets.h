@@ -1,4 +1,5 @@
-// Microfacets (DESIGN.md section 6): one facet per voxel with evidence, its
+// Microfacets (Yamazaki, Sagawa, Kawasaki, Ikeuchi and Sakauchi, "Microfacet
+// billboarding", 2002): one facet per voxel with evidence, its
 // size chosen per region from the reliability of the geometry, the cameras
 // that see it, and the error bound that ties facet size to camera spacing.
 #pragma once
@@ -23,7 +24,7 @@ namespace s2r {
 // texel moves on screen by |t| sin(alpha), alpha the angle between camera and
 // view directions. Depth clipping draws it only where |t| = |d - D| < w/2, so
 //     e <= (w/2) sin(alpha),  alpha <= delta = half the angular gap between
-// neighbouring cameras (the nearest camera is chosen). The seed's example (30
+// neighbouring cameras (the nearest camera is chosen). The paper's example (30
 // degree spacing, e < 0.13 w) is (w/2) sin 15 deg = 0.129 w. In pixels at
 // viewing distance z with focal length f: e_px = f e / z.
 double texel_error_bound(double w, double delta_rad);

@@ -1,4 +1,5 @@
-// The octree over the fused surface (DESIGN.md section 7, seed 000).
+// The octree over the fused surface (Wakatsuki, Ishii, Takahashi, Imai and Makino, 2003;
+// docs/references.md).
 //
 // Samples are the fused signed distances at voxel centres; a cell is the cube
 // between 8 samples (dual to the voxels). A cell holds surface when one of its

@@ -1,4 +1,4 @@
-// The surface octree's invariants (DESIGN.md section 7): each node's normal
+// The surface octree's invariants (docs/references.md: Wakatsuki et al. 2003): each node's normal
 // cone holds its children's cones; dE >= 0 and never grows toward the leaves;
 // patch meshes of cuts through different levels leave no cracks (a closed
 // surface stays closed); opposite normals open the cone to pi.

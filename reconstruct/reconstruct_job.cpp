@@ -14,11 +14,12 @@
 #include <spdlog/fmt/fmt.h>
 
 #include "calibrate/calibration.h"
-#include "capture/synth_rig.h"
+#include "capture/ground_truth.h"
 #include "core/image_io.h"
 #include "core/parallel.h"
 #include "core/progress.h"
 #include "reconstruct/camera_depth.h"
+#include "reconstruct/frame_inputs.h"
 #include "reconstruct/fusion.h"
 #include "reconstruct/microfacets.h"
 #include "reconstruct/model.h"
@@ -28,47 +29,6 @@
 
 namespace s2r {
 namespace fs = std::filesystem;
-
-Result<FramePoses> resolve_frame_poses(const Session& s, const fs::path& poses_file, const fs::path& calibration_file) {
-  FramePoses fp;
-  fp.world_from_camera.resize(s.frames.size());
-  if (!poses_file.empty()) {
-    auto p = load_poses(poses_file);
-    if (!p) return std::unexpected(p.error());
-    for (const auto& f : p->frames) {
-      if (f.index < 0 || size_t(f.index) >= s.frames.size())
-        return fail("'" + poses_file.string() + "': frame " + std::to_string(f.index) + " is not in the session (" +
-                    std::to_string(s.frames.size()) + " frames)");
-      if (!f.flagged) fp.world_from_camera[size_t(f.index)] = f.world_from_camera;
-    }
-    fp.source = "poses file " + poses_file.filename().string();
-    return fp;
-  }
-  bool given = !s.frames.empty();
-  for (const auto& f : s.frames) given = given && f.world_from_camera.has_value();
-  if (given) {
-    for (size_t i = 0; i < s.frames.size(); ++i) fp.world_from_camera[i] = s.frames[i].world_from_camera;
-    fp.source = "given";
-    return fp;
-  }
-  if (!calibration_file.empty()) {
-    auto c = load_calibration(calibration_file);
-    if (!c) return std::unexpected(c.error());
-    if (!c->axis) return fail("'" + calibration_file.string() + "' has no turntable axis: run s2r calibrate axis, or give --poses");
-    for (size_t i = 0; i < s.frames.size(); ++i)
-      fp.world_from_camera[i] = c->world_from_camera_at(c->frame_angle_deg(s, i), s.layout);
-    fp.source = c->has_measured_angles(s) ? "measured table angles (markers) about the calibrated axis"
-                                          : "table angles about the calibrated axis";
-    return fp;
-  }
-  if (auto truth = load_synth_truth(s.root); truth && truth->world_from_camera.size() == s.frames.size()) {
-    for (size_t i = 0; i < s.frames.size(); ++i) fp.world_from_camera[i] = truth->world_from_camera[i];
-    fp.source = "ground truth (synthetic rig)";
-    return fp;
-  }
-  return fail("session '" + s.root.string() +
-              "' has no camera poses: give --poses (s2r register) or --calibration with a turntable axis");
-}
 
 namespace {
 
@@ -92,16 +52,37 @@ struct Timer {
 
 }  // namespace
 
+std::string_view geometry_name(Geometry g) {
+  switch (g) {
+    case Geometry::automatic: return "auto";
+    case Geometry::depth: return "depth";
+    case Geometry::hull: return "hull";
+    case Geometry::both: return "both";
+  }
+  return "auto";
+}
+
+std::optional<Geometry> parse_geometry(std::string_view name) {
+  for (Geometry g : {Geometry::automatic, Geometry::depth, Geometry::hull, Geometry::both})
+    if (geometry_name(g) == name) return g;
+  return std::nullopt;
+}
+
+Status ReconstructJob::validate() const {
+  if (!(target_error_px > 0)) return fail(ErrorCode::invalid, "target_error_px: must be > 0 pixels");
+  if (!(truncation_voxels >= 1)) return fail(ErrorCode::invalid, "truncation_voxels: must be at least 1 voxel");
+  if (voxel_m && !(*voxel_m > 0 && std::isfinite(*voxel_m)))
+    return fail(ErrorCode::invalid, "voxel_m: must be 'auto' or a positive number of metres");
+  if (threads < 0) return fail(ErrorCode::invalid, "threads: must be >= 0 (0 = all cores)");
+  return {};
+}
+
 Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   Stopwatch total;
   Report rep;
   rep.stage = "reconstruct";
   Timer timer{rep, {}};
-  if (!(job.target_error_px > 0)) return fail("--target-error must be > 0 pixels");
-  if (!(job.truncation_voxels >= 1)) return fail("--truncation must be at least 1 voxel");
-  if (job.voxel_m && !(*job.voxel_m > 0 && std::isfinite(*job.voxel_m))) return fail("--voxel must be 'auto' or a positive number of metres");
-  static const std::set<std::string> modes = {"auto", "depth", "hull", "both"};
-  if (!modes.count(job.geometry)) return fail("--geometry must be auto, depth, hull or both (got '" + job.geometry + "')");
+  if (auto st = job.validate(); !st) return std::unexpected(st.error());
 
   // Image headers are not probed here: the frames the job uses are decoded
   // below and their sizes checked against the intrinsics then.
@@ -119,15 +100,14 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   std::set<int> held(job.holdout.begin(), job.holdout.end());
   for (int h : held)
     if (h < 0 || size_t(h) >= s.frames.size())
-      return fail("--holdout " + std::to_string(h) + ": the session has frames 0.." + std::to_string(int(s.frames.size()) - 1));
+      return fail(ErrorCode::invalid, "holdout: frame " + std::to_string(h) + " is not in the session (frames 0.." +
+                                          std::to_string(int(s.frames.size()) - 1) + ")");
 
   // Depth sensor model.
-  std::optional<Intrinsics> depth_K;
-  Eigen::Isometry3d color_from_depth = Eigen::Isometry3d::Identity();
-  double unit = 0.001;
-  if (s.depth) depth_K = s.depth->intrinsics, color_from_depth = s.depth->color_from_depth, unit = s.depth->unit_m;
-  if (cal && cal->depth) depth_K = cal->depth->intrinsics;
-  if (cal && cal->color_from_depth) color_from_depth = *cal->color_from_depth;
+  const DepthSensorModel sensor = resolve_depth_sensor(s, cal ? &*cal : nullptr);
+  const std::optional<Intrinsics>& depth_K = sensor.intrinsics;
+  const Eigen::Isometry3d& color_from_depth = sensor.color_from_depth;
+  const double unit = sensor.unit_m;
 
   // Views: frames with a pose and a colour image, not held out.
   struct View {
@@ -140,7 +120,7 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   std::vector<View> views;
   {
     // Colour is needed for silhouettes and textures only.
-    const bool want_color = job.textures || job.geometry != "depth";
+    const bool want_color = job.textures || job.geometry != Geometry::depth;
     auto wanted = [&](size_t i) {
       return !held.count(int(i)) && poses->world_from_camera[i] && !s.frames[i].color.empty();
     };
@@ -170,7 +150,7 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
       }
       View v;
       v.frame = int(i);
-      auto K = cal && cal->color ? std::optional<Intrinsics>(cal->color->intrinsics) : s.color_intrinsics(f);
+      auto K = resolve_color_intrinsics(s, f, cal ? &*cal : nullptr);
       if (!K) return fail("frame " + std::to_string(i) + ": no colour intrinsics (session or --calibration)");
       v.K = *K;
       v.world_from_camera = *poses->world_from_camera[i];
@@ -212,7 +192,7 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
 
   // Silhouettes (object-centre sessions against a uniform backdrop).
   std::vector<ImageU8> masks;
-  bool masks_ok = s.layout == Layout::kObjectCentre && job.geometry != "depth";
+  bool masks_ok = s.layout == Layout::kObjectCentre && job.geometry != Geometry::depth;
   double worst_spread = 0;
   if (masks_ok) {
     masks.resize(views.size());
@@ -224,20 +204,24 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
       else masks[i] = std::move(*m);
     }
   }
-  std::string mode = job.geometry;
-  if (mode == "auto") {
-    if (has_depth) mode = masks_ok ? "both" : "depth";
-    else if (masks_ok) mode = "hull";
+  Geometry mode = job.geometry;
+  if (mode == Geometry::automatic) {
+    if (has_depth) mode = masks_ok ? Geometry::both : Geometry::depth;
+    else if (masks_ok) mode = Geometry::hull;
     else return fail("no depth in the session and no silhouettes (the background is not a uniform backdrop, border spread " +
                      fmt::format("{:.1f}", worst_spread) + " levels): nothing to reconstruct from");
   }
-  if ((mode == "hull" || mode == "both") && !masks_ok)
-    return fail(s.layout != Layout::kObjectCentre
-                    ? std::string("--geometry ") + mode + " needs an object-centre session (silhouettes of an object)"
-                    : fmt::format("--geometry {}: the images' border is not a uniform backdrop (spread {:.1f} levels)", mode, worst_spread));
-  if ((mode == "depth" || mode == "both") && !has_depth) return fail("--geometry " + mode + ": the session has no depth");
-  if (mode == "depth") rep.skipped["visual_hull_not_needed"] = 1;
-  if (mode == "hull") rep.skipped["depth_fusion_without_depth"] = 1;
+  const std::string_view mode_name = geometry_name(mode);
+  if ((mode == Geometry::hull || mode == Geometry::both) && !masks_ok)
+    return fail(ErrorCode::invalid,
+                s.layout != Layout::kObjectCentre
+                    ? fmt::format("geometry: {} needs an object-centre session (silhouettes of an object)", mode_name)
+                    : fmt::format("geometry: {}: the images' border is not a uniform backdrop (spread {:.1f} levels)",
+                                  mode_name, worst_spread));
+  if ((mode == Geometry::depth || mode == Geometry::both) && !has_depth)
+    return fail(ErrorCode::invalid, fmt::format("geometry: {}: the session has no depth", mode_name));
+  if (mode == Geometry::depth) rep.skipped["visual_hull_not_needed"] = 1;
+  if (mode == Geometry::hull) rep.skipped["depth_fusion_without_depth"] = 1;
 
   // Where the object is, and how far apart the cameras are.
   std::vector<Eigen::Isometry3d> cams;
@@ -355,7 +339,7 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   const double w_largest = job.per_region ? 2 * w0 : w0;
   rep.params["voxel_m"] = w0;
   rep.params["voxel_coarse_m"] = w_largest;
-  rep.params["geometry"] = mode;
+  rep.params["geometry"] = std::string(mode_name);
   rep.params["poses"] = poses->source;
   rep.params["target_error_px"] = job.target_error_px;
   rep.params["camera_gap_deg"] = spacing.max_gap_rad * 180 / std::numbers::pi;
@@ -372,7 +356,7 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   // Fusion.
   SparseVolume volume(w0, job.truncation_voxels * w0, crop);
   std::vector<DepthObservation> depth_obs;
-  if (mode == "depth" || mode == "both") {
+  if (mode == Geometry::depth || mode == Geometry::both) {
     Progress progress("fuse depth", views.size());
     for (const auto& v : views) {
       if (v.depth.empty()) {
@@ -390,14 +374,14 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
     if (fs_.samples_outside_crop) rep.skipped["depth_samples_outside_object_box"] = double(fs_.samples_outside_crop);
   }
   timer.lap("fusion");
-  if (mode == "hull" || mode == "both") {
+  if (mode == Geometry::hull || mode == Geometry::both) {
     std::vector<SilhouetteObservation> sil;
     for (size_t i = 0; i < views.size(); ++i) sil.push_back({&masks[i], views[i].K, views[i].world_from_camera});
-    const HullStats hs = volume.carve_hull(sil, mode == "both" ? depth_obs : std::vector<DepthObservation>{}, box, job.threads);
+    const HullStats hs = volume.carve_hull(sil, mode == Geometry::both ? depth_obs : std::vector<DepthObservation>{}, box, job.threads);
     rep.counts["hull_voxels"] = double(hs.hull_voxels);
     rep.counts["hull_cells_tested"] = double(hs.cells_tested);
     rep.counts["fuzzy_voxels"] = double(hs.fuzzy_voxels);
-    if (mode == "both") {
+    if (mode == Geometry::both) {
       rep.skipped["hull_voxels_free_by_depth"] = double(hs.carved_by_depth);
       rep.skipped["hull_voxels_inside_by_depth"] = double(hs.solid_by_depth);
     }

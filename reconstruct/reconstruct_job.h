@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include <Eigen/Geometry>
@@ -17,31 +18,31 @@
 
 namespace s2r {
 
+// Where the geometry comes from: fused depth, the visual hull of the
+// silhouettes, both, or `automatic` (depth, plus the hull against a uniform
+// backdrop; the hull alone without depth).
+enum class Geometry { automatic, depth, hull, both };
+std::string_view geometry_name(Geometry g);                   // "auto", "depth", "hull", "both"
+std::optional<Geometry> parse_geometry(std::string_view name);  // the inverse
+
 struct ReconstructJob {
   std::filesystem::path session;
   std::filesystem::path out;          // the model folder
   std::filesystem::path poses;        // optional: registered poses (s2r register)
   std::filesystem::path calibration;  // optional: intrinsics, depth extrinsic, table axis
   std::optional<double> voxel_m;      // nullopt: from the error bound (--voxel auto)
-  std::string geometry = "auto";      // auto | depth | hull | both
+  Geometry geometry = Geometry::automatic;
   std::vector<int> holdout;           // frames left out entirely
   double target_error_px = 0.5;       // on-screen texel error the auto voxel keeps under
   double truncation_voxels = 4;       // tau in voxels
   bool per_region = true;             // unreliable / fuzzy regions get 2x larger facets
   bool textures = true;               // write cameras/NNNN.exr
   int threads = 0;
-  bool quiet = false;
-};
 
-// Camera poses for a session's frames (colour camera, world frame), in order of
-// preference: a poses file; the frames' given poses (imports); table angles
-// about a calibrated axis; the synthetic rig's ground truth. `source` says which.
-struct FramePoses {
-  std::vector<std::optional<Eigen::Isometry3d>> world_from_camera;
-  std::string source;
+  // The options' own ranges, an error naming the field ("target_error_px:
+  // must be > 0 pixels"); what depends on the session is checked by the job.
+  Status validate() const;
 };
-Result<FramePoses> resolve_frame_poses(const Session& s, const std::filesystem::path& poses_file,
-                                       const std::filesystem::path& calibration_file);
 
 Result<Report> run_reconstruct_job(const ReconstructJob& job);
 

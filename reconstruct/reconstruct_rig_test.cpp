@@ -47,7 +47,6 @@ const fs::path& session(const std::string& scene, int views, int width = 640, in
 }
 
 Report reconstruct(ReconstructJob job) {
-  job.quiet = true;
   auto r = run_reconstruct_job(job);
   EXPECT_TRUE(r) << r.error().message;
   return r ? *r : Report{};
@@ -95,7 +94,7 @@ TEST(ReconstructRig, WithoutTexturesTheSameFacets) {
   ReconstructJob job;
   job.session = session("bunny", 24);
   job.voxel_m = 0.003;
-  job.geometry = "depth";
+  job.geometry = Geometry::depth;
   job.out = scratch() / "bunny_textured_3mm";
   const Report with = reconstruct(job);
   job.textures = false;
@@ -129,7 +128,7 @@ TEST(ReconstructRig, FuzzyStrandsAreCovered) {
 }
 
 TEST(ReconstructRig, CameraInTheMiddleRoom) {
-  // The seed's second layout: the camera turns in the middle of a room.
+  // The paper's second layout (Yamazaki et al. 2002): the camera turns in the middle of a room.
   ReconstructJob job;
   job.session = session("room", 24, 320, 240);
   job.out = scratch() / "room_model";
@@ -204,10 +203,15 @@ TEST(ReconstructRig, StiffCases) {
   job.holdout = {8};
   auto bad = run_reconstruct_job(job);
   ASSERT_FALSE(bad);
-  EXPECT_NE(bad.error().message.find("--holdout 8"), std::string::npos);
+  EXPECT_NE(bad.error().message.find("frame 8 is not in the session"), std::string::npos) << bad.error().message;
   job.holdout.clear();
-  job.geometry = "laser";
-  EXPECT_FALSE(run_reconstruct_job(job));
+  EXPECT_FALSE(parse_geometry("laser"));
+  job.truncation_voxels = 0.5;
+  auto bad_option = run_reconstruct_job(job);
+  ASSERT_FALSE(bad_option);
+  EXPECT_TRUE(bad_option.error().is(ErrorCode::invalid));
+  EXPECT_EQ(bad_option.error().message.rfind("truncation_voxels:", 0), 0u) << bad_option.error().message;
+  job.truncation_voxels = 4;
 
   // A depth frame of another size than the depth intrinsics (the session's
   // image headers are not probed before the frames are decoded): an error
@@ -221,7 +225,7 @@ TEST(ReconstructRig, StiffCases) {
     ASSERT_TRUE(write_image(small / s->frames[5].depth, ImageU16(100, 80, 1, 1000)));
   }
   job.session = small;
-  job.geometry = "depth";
+  job.geometry = Geometry::depth;
   job.out = scratch() / "blob_small_model";
   bad = run_reconstruct_job(job);
   ASSERT_FALSE(bad);

@@ -2,7 +2,7 @@
 
 #include <fmt/format.h>
 
-#include "capture/synth_rig.h"
+#include "capture/ground_truth.h"
 #include "core/sweep.h"
 #include "reconstruct/poses.h"
 #include "reconstruct/registration_input.h"
@@ -20,7 +20,7 @@ Result<Report> run_register_job(const RegisterJob& job) {
   RegistrationOptions o = job.options;
   // Load.
   Result<RegistrationInput> in = fail("no input");
-  std::optional<SynthTruth> truth;
+  std::optional<GroundTruth> truth;
   std::string source;
   Calibration cal;
   bool have_cal = false;
@@ -38,7 +38,7 @@ Result<Report> run_register_job(const RegisterJob& job) {
     if (!s) return std::unexpected(s.error());
     in = load_session_views(*s, have_cal ? &cal : nullptr, {});
     source = job.session.string();
-    if (auto t = load_synth_truth(job.session); t) truth = std::move(*t);
+    if (auto t = load_ground_truth(job.session); t) truth = std::move(*t);
   }
   if (!in) return std::unexpected(in.error());
   report.seconds = clock.seconds();

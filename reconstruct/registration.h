@@ -1,4 +1,5 @@
-// Simultaneous registration of all views (DESIGN.md section 5): one Ceres
+// Simultaneous registration of all views (after Neugebauer, "Geometrical cloning of 3D
+// objects via simultaneous registration of multiple range images", 1997): one Ceres
 // problem over every view pose, point-to-plane residuals between every pair of
 // views found to overlap, a robust (Huber) loss, correspondences re-found on a
 // coarse-to-fine voxel schedule.

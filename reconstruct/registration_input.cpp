@@ -8,6 +8,7 @@
 #include "core/parallel.h"
 #include "core/progress.h"
 #include "core/rgbd.h"
+#include "reconstruct/frame_inputs.h"
 
 namespace s2r {
 namespace fs = std::filesystem;
@@ -96,16 +97,10 @@ Result<RegistrationInput> load_session_views(const Session& s, const Calibration
   } else {
     in.notes.push_back("initial poses: the session's given poses");
   }
-  std::optional<Intrinsics> depth_K;
-  Eigen::Isometry3d color_from_depth = Eigen::Isometry3d::Identity();
-  double unit = 0.001;
-  if (s.depth) {
-    depth_K = s.depth->intrinsics;
-    color_from_depth = s.depth->color_from_depth;
-    unit = s.depth->unit_m;
-  }
-  if (cal && cal->depth) depth_K = cal->depth->intrinsics;
-  if (cal && cal->color_from_depth) color_from_depth = *cal->color_from_depth;
+  const DepthSensorModel sensor = resolve_depth_sensor(s, cal);
+  const std::optional<Intrinsics>& depth_K = sensor.intrinsics;
+  const Eigen::Isometry3d& color_from_depth = sensor.color_from_depth;
+  const double unit = sensor.unit_m;
   std::vector<PointScan> scans;
   std::vector<PrepOptions> per;
   size_t off_table = 0;

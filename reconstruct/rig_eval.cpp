@@ -4,7 +4,7 @@
 #include <cmath>
 #include <random>
 
-#include "capture/synth_rig.h"
+#include "capture/ground_truth.h"
 #include "core/image_io.h"
 #include "reconstruct/microfacets.h"
 #include "reconstruct/view_cloud.h"
@@ -108,7 +108,7 @@ Result<DepthError> camera_depth_error(const Model& model, const fs::path& model_
 }
 
 Result<StrandCoverage> strand_coverage(const Model& model, const fs::path& session_dir) {
-  auto truth = load_synth_truth(session_dir);
+  auto truth = load_ground_truth(session_dir);
   if (!truth) return std::unexpected(truth.error());
   StrandCoverage sc;
   size_t covered = 0, all_covered = 0, over = 0;

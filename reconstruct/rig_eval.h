@@ -59,7 +59,7 @@ struct TexelError {
   double max_ratio = 0;   // largest e / ((f / z) (w/2) sin(alpha)), alpha the angle between the
                           // camera ray and the view ray at the texel: <= 1 when the bound holds
 };
-// The billboard geometry of DESIGN.md section 6 measured on the rig: true
+// The billboard geometry of microfacet billboarding measured on the rig: true
 // surface points seen by each model camera (exact depth) are drawn on every
 // facet whose billboard, facing a view turned by `angle_deg` about the
 // cameras' ring axis, passes the depth clip |d - D| < w/2; the displacement

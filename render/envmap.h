@@ -1,4 +1,5 @@
-// The multi-scale environment map (DESIGN.md section 9, seed 002): a panorama
+// The multi-scale environment map (Okumura, master's thesis, 2003;
+// docs/references.md): a panorama
 // prefiltered for every roughness at once, stored as one 3D texture. The
 // direction from the volume's centre is the reflection vector r, the distance
 // the smoothness lambda in [0, 1]: voxel t = r lambda holds the normalised
@@ -15,13 +16,13 @@
 // hemisphere), g grows as (|t| s)^2 log(I) / 2 and stays finite at |t| = 1.
 //
 // Building it (build_envmap) uses the structure of the problem instead of the
-// seed's brute force over every pixel for every voxel:
+// thesis's brute force over every pixel for every voxel:
 //  - a lobe of exponent L has angular scale 1/sqrt(L), so each voxel sums a
 //    solid-angle-weighted pyramid level whose pixels are `samples_per_scale`
 //    times finer than that scale (rough lobes read a coarse panorama, sharp
 //    lobes the full one), and
 //  - only over the cap where the weight is above `threshold` of its peak (the
-//    seed's weight threshold th), rows and columns of the cap found in closed
+//    thesis's weight threshold th), rows and columns of the cap found in closed
 //    form on the equirectangular grid.
 // Weights are exp(L log cos) with log cos = log1p(-chord^2 / 2), shifted by the
 // largest in the cap: finite for any L. The result is compared, voxel by voxel,
@@ -37,7 +38,7 @@
 #include "core/image.h"
 #include "core/report.h"
 #include "core/result.h"
-#include "core/phong_reference.h"  // envmap_exponent, envmap_radius, roughness_to_exponent
+#include "trace/phong_reference.h"  // envmap_exponent, envmap_radius, roughness_to_exponent
 
 namespace s2r {
 

@@ -1,5 +1,5 @@
 // The multi-scale environment map: g() and its inverse, accuracy against the
-// brute-force lobe, and the stiff cases of DESIGN.md section 12.
+// brute-force lobe, and its stiff cases.
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -52,7 +52,7 @@ TEST(EnvmapExponent, IsFiniteMonotoneAndInvertible) {
   EXPECT_NEAR(envmap_exponent(1e-100, 128, 256), std::log(256) / std::log(2 / 128e-100), 1e-12);
   EXPECT_GT(envmap_exponent(1e-100, 128, 256), envmap_exponent(1e-300, 128, 256));
   EXPECT_GT(envmap_exponent(4.9e-324, 128, 256), 0);
-  // The seed's 128^3 map at lambda = 1: L in the tens of thousands.
+  // Okumura's (2003) 128^3 map at lambda = 1: L in the tens of thousands.
   EXPECT_NEAR(envmap_exponent(1, 128, 256), 45431.6, 0.5);
   EXPECT_EQ(envmap_exponent(5, 128, 256), envmap_exponent(1, 128, 256));  // clamped
   double last = 0;
@@ -132,7 +132,7 @@ TEST(Envmap, SunTenThousandTimesTheSkyStaysBoundedAndAccurate) {
 
 TEST(Envmap, ExponentsInTheTensOfThousandsStayFinite) {
   // 256 intensity levels at s = 32 give L(1) ~ 2,800; 1e40 levels give ~
-  // 47,000: the seed's sharpest lobes on a map small enough for a unit test.
+  // 47,000: the thesis's sharpest lobes on a map small enough for a unit test.
   const Panorama pano = sky(512, 256, 100);
   EnvmapOptions o;
   o.size = 32;

@@ -8,7 +8,7 @@
 
 #include "core/report.h"
 #include "render/facet_selection.h"
-#include "core/visual_field.h"
+#include "trace/visual_field.h"
 
 namespace s2r {
 

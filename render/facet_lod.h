@@ -1,5 +1,6 @@
-// Octree level of detail for the billboards (DESIGN.md §7, seed 000, with the
-// error bound of §6 and the visual field of §8). Built once per model from
+// Octree level of detail for the billboards (Wakatsuki et al. 2003, with
+// the facet error bound of Yamazaki et al. 2002 and the visual field of
+// Mochizuki and Makino; docs/references.md). Built once per model from
 // its surface octree; run on the CPU every frame before the per-facet camera
 // choice (render/facet_selection.h).
 //
@@ -14,7 +15,7 @@
 // facets, with its normal cone's axis as normal (none when the cone is wider
 // than pi/2).
 //
-// Selection from the root, per node (the seed's §3.5):
+// Selection from the root, per node (Wakatsuki et al. 2003, section 3.5):
 //   1. frustum: the node's sphere (v, r) outside the view -> skipped;
 //   2. normal cone: gamma = angle(v_e, n); the whole cone faces away
 //      (gamma - theta - asin(r/d_o) beyond the per-facet back-face angle,
@@ -27,7 +28,7 @@
 //      facets and recurse into the children:
 //      - contour (pi/2 - theta <= gamma): dE / d_o <= T_s / d_s (eq. 4-5);
 //      - luminance: dB l_s <= T_b with l_s = d_s l_p (n . v_e) / d_o (eq. 9-10),
-//        l_p the node's cube side. The seed's dB comes from lights and a
+//        l_p the node's cube side. The paper's dB comes from lights and a
 //        Phong model (eq. 6-8); here the surfaces carry photographs, so dB
 //        is the measured luminance range (0..1) of the node's facets in
 //        their most head-on cameras: the contrast a coarse node would smear;
@@ -53,8 +54,8 @@ struct ViewCamera;
 
 struct LodOptions {
   bool enabled = false;
-  double shape_px = 0.5;    // T_s: contour shape error on screen, pixels (the seed's 0.5)
-  double luminance = 1.5;   // T_b: luminance range (0..1) x projected side (pixels) (the seed's 1.5)
+  double shape_px = 0.5;    // T_s: contour shape error on screen, pixels (the paper's 0.5)
+  double luminance = 1.5;   // T_b: luminance range (0..1) x projected side (pixels) (the paper's 1.5)
   double texel_px = 1.0;    // T_e: the §6 texel misplacement bound on screen, pixels
   bool field = false;       // visual-field LOD around gaze_px
   std::optional<Eigen::Vector2d> gaze_px;  // default: the image centre

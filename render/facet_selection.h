@@ -1,5 +1,5 @@
-// Which facets a frame draws, and from which input cameras (DESIGN.md §6.3,
-// §7, §13). Runs on the CPU each frame, so what is left out is counted:
+// Which facets a frame draws, and from which input cameras (microfacet
+// billboarding with the octree LOD; docs/references.md). Runs on the CPU each frame, so what is left out is counted:
 //
 //   - frustum: the facet's bounding sphere lies outside the view's image or
 //     in front of the near plane;

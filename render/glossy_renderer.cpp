@@ -13,7 +13,7 @@
 #include "core/report.h"
 #include "render/gl_context.h"
 #include "render/gl_program.h"
-#include "render/raytrace_job.h"
+#include "trace/meshes.h"
 
 namespace s2r {
 

@@ -1,16 +1,16 @@
 // OpenGL drawing of glossy materials from the multi-scale environment map
-// (DESIGN.md sections 9 and 13), for the same scene description the ray
+// (Okumura 2003; docs/references.md), for the same scene description the ray
 // tracer reads (RtScene), so the two can be compared pixel for pixel.
 //
 // Per fragment: the reflection r of the view ray about the shading normal,
 // the roughness from the material's roughness texture (bilinear, per pixel:
-// the seed could only set it per vertex) or its constant, the Phong exponent
+// the thesis could only set it per vertex) or its constant, the Phong exponent
 // L = roughness_to_exponent(roughness) and the map's radius for it, and one
 // trilinear read of the 3D texture at r lambda(L). Colour:
 //   (1 - k_g) k_d albedo E(n, lambda ~ 0) + k_g E(r, lambda(L))
 // where E is the map; the diffuse part reads the map's roughest shell about
 // the normal in place of the ray tracer's point lights (this renderer has no
-// lights). The seed's simplification is kept and stated: the lobe is not
+// lights). The thesis's simplification is kept and stated: the lobe is not
 // tested for occlusion (the object does not reflect itself), as in the ray
 // tracer's glossy term. Pixels the objects do not cover show the panorama
 // (nearest pixel, as the ray tracer's misses) or the scene's background.
@@ -33,7 +33,7 @@
 #include "render/envmap.h"
 #include "render/framebuffer.h"
 #include "render/material_lod.h"
-#include "core/raytracer.h"
+#include "trace/raytracer.h"
 
 namespace s2r {
 
@@ -111,7 +111,7 @@ struct GlossyComparison {
   size_t envmap_texture_bytes = 0;
 };
 // Roughness ramping 0 -> 1 `bands` times from the south pole to the north:
-// smooth stretches and per-pixel jumps (the seed's per-vertex roughness
+// smooth stretches and per-pixel jumps (the thesis's per-vertex roughness
 // distorted where it changed quickly).
 ImageU8 roughness_ramps(int bands);
 Result<GlossyComparison> compare_glossy_sphere(std::shared_ptr<const Panorama> panorama, std::shared_ptr<const EnvironmentMap> map,
@@ -134,7 +134,7 @@ struct EnvironmentSetup {
   double floor_roughness = -1;                  // < 0: no floor
   std::filesystem::path floor_roughness_texture;  // per-pixel roughness (first channel / 255), 4 tiles per side
   // A relief floor instead (brick wall material, render/material_lod.h): R and
-  // D in the seed's 0..1000, drawn with material LOD; not glossy. R < 0: none.
+  // D in Tsutsumi's 0..1000, drawn with material LOD; not glossy. R < 0: none.
   double floor_relief_R = -1, floor_relief_D = 200;
   Eigen::Vector3f floor_colour{0.45f, 0.45f, 0.45f};
   float floor_glossy = 0.5f;                    // k_g of the floor (0: matte, no map needed)

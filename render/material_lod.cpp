@@ -15,7 +15,7 @@
 namespace s2r {
 
 double seed_material_threshold(double R, double D) {
-  // Eq. 4.1 of the seed: slope and intercept per relief row.
+  // Eq. 4.1 of Tsutsumi (2010): slope and intercept per relief row.
   static const double rows[][3] = {{0, 0.331, 59.5},   {200, 0.327, 64.7}, {400, 0.325, 68.8},
                                    {600, 0.324, 74.0}, {800, 0.327, 69.0}, {1000, 0.327, 69.0}};
   R = std::clamp(R, 0.0, 1000.0);

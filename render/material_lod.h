@@ -1,22 +1,23 @@
-// Material level of detail (DESIGN.md section 10, seed 003): texture mapping,
+// Material level of detail (Tsutsumi, master's thesis, 2010;
+// docs/references.md): texture mapping,
 // bump mapping and parallax occlusion mapping (POM) of a relief material,
-// chosen per pixel from the normalised viewing distance V against the seed's
+// chosen per pixel from the normalised viewing distance V against the thesis's
 // measured threshold lines
 //
 //   T(R) = 0.331 R + 59.5 (D = 0),   0.327 R + 64.7 (D = 200),  0.325 R + 68.8 (D = 400),
 //          0.324 R + 74.0 (D = 600), 0.327 R + 69.0 (D = 800 and 1000)
 //
 // (R: pattern repeats, D: relief depth, V: distance, all normalised to 0..1000;
-// smaller T = the simpler method sooner). What the seed measured, and so what
+// smaller T = the simpler method sooner). What the thesis measured, and so what
 // is switched: a material with relief (D > 0) goes from POM to bump mapping
 // at V = T(R, D) (linear in D between the rows); a flat one (D = 0, where POM
 // and bump mapping draw the same) from bump to plain texture mapping at
 // T(R, 0). Within +-blend of the threshold both methods run and are mixed
 // (smoothstep), so the switch does not pop.
 //
-// Normalisations (ours; the seed's were its application's ranges):
+// Normalisations (ours; the thesis's were its application's ranges):
 // V = 1000 (d - near) / (far - near) clamped, d the fragment's distance;
-// R = 1000 (repeats - 2) / 8 for 2..10 repeats across the surface (the seed's
+// R = 1000 (repeats - 2) / 8 for 2..10 repeats across the surface (the thesis's
 // range); D = 1000 depth / 0.1 for a relief depth of 0..0.1 uv units.
 #pragma once
 
@@ -27,7 +28,7 @@
 #include "core/image.h"
 #include "core/result.h"
 #include "render/framebuffer.h"
-#include "core/raytracer.h"
+#include "trace/raytracer.h"
 
 namespace s2r {
 
@@ -96,7 +97,7 @@ Result<Eigen::Matrix4f> off_axis_view_projection(const Eigen::Vector3d& eye, con
 // A distance to the screen's plane, for a default near plane.
 double screen_distance(const Eigen::Vector3d& eye, const Screen& screen);
 
-// The two scenes of the seed's comparison: a flat board receding from the
+// The two scenes of the thesis's comparison: a flat board receding from the
 // eye, and a "roof" model (rows of gabled roofs, many faces at many angles).
 struct MaterialScene {
   RtMesh mesh;

@@ -1,4 +1,4 @@
-// Material LOD (seed 003): the threshold lines, and the per-pixel switch
+// Material LOD (Tsutsumi 2010): the threshold lines, and the per-pixel switch
 // drawing exactly the detailed method near the eye, the simpler one far
 // away, and a continuous mix in between.
 #include <gtest/gtest.h>

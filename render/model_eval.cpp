@@ -16,7 +16,6 @@
 #include "core/progress.h"
 #include "core/sweep.h"
 #include "reconstruct/fusion.h"
-#include "reconstruct/reconstruct_job.h"
 #include "render/gl_context.h"
 #include "render/viewer.h"
 
@@ -58,7 +57,7 @@ Result<SessionCameras> SessionCameras::load(const FrameSource& src) {
   if (!src.calibration.empty()) {
     auto cal = load_calibration(src.calibration);
     if (!cal) return std::unexpected(cal.error());
-    if (cal->color) c.calibrated = cal->color->intrinsics;
+    c.calibration = std::move(*cal);
   }
   return c;
 }
@@ -69,7 +68,7 @@ Result<ViewCamera> SessionCameras::view(int frame) const {
   if (!poses.world_from_camera[size_t(frame)]) return fail(fmt::format("frame {} has no pose ({})", frame, poses.source));
   ViewCamera v;
   v.world_from_camera = *poses.world_from_camera[size_t(frame)];
-  const auto K = calibrated ? calibrated : session.color_intrinsics(session.frames[size_t(frame)]);
+  const auto K = resolve_color_intrinsics(session, session.frames[size_t(frame)], calibration ? &*calibration : nullptr);
   if (!K) return fail(fmt::format("frame {} has no colour intrinsics", frame));
   v.K = *K;
   return v;

@@ -19,14 +19,14 @@
 #include "core/report.h"
 #include "core/result.h"
 #include "capture/session.h"
-#include "reconstruct/reconstruct_job.h"
+#include "reconstruct/frame_inputs.h"
 #include "render/glossy_renderer.h"
 #include "render/model_renderer.h"
 
 namespace s2r {
 
 // Where a session frame's camera comes from (reconstruct's own rules:
-// reconstruct/reconstruct_job.h resolve_frame_poses).
+// reconstruct/frame_inputs.h).
 struct FrameSource {
   std::filesystem::path session;
   std::filesystem::path poses;
@@ -44,7 +44,7 @@ Status save_view_file(const std::filesystem::path& path, const ViewCamera& view)
 struct SessionCameras {
   Session session;
   FramePoses poses;
-  std::optional<Intrinsics> calibrated;
+  std::optional<Calibration> calibration;
   static Result<SessionCameras> load(const FrameSource& source);
   Result<ViewCamera> view(int frame) const;
 };

@@ -1,5 +1,5 @@
-// The drawing core of `s2r view`, `s2r render` and `s2r eval` (DESIGN.md
-// §6-7): one class, the same shaders for the window and the headless context.
+// The drawing core of `s2r view`, `s2r render` and `s2r eval` (microfacet
+// billboarding, Yamazaki et al. 2002): one class, the same shaders for the window and the headless context.
 //
 // Billboard pass: every selected facet (render/facet_selection.h) is a square
 // sqrt(3) w wide through its centre, facing the eye. Each fragment projects
@@ -7,7 +7,7 @@
 // and with depth clipping takes a camera's texel only where |d - D| < tol:
 // d the fragment's distance from that camera, D the distance stored in the
 // camera's texture, tol = clip_scale w (sqrt(3)/2 w, the farthest a point of
-// the voxel lies from its centre; the seed's w/2 leaves holes where the
+// the voxel lies from its centre; the paper's w/2 leaves holes where the
 // surface clips a voxel corner), widened where the texel's on-screen
 // misplacement |d - D| sin(theta) stays under pixel_error (at theta = 0 the
 // view is the camera's and any depth is exact). Passing texels are refined
@@ -58,7 +58,7 @@ struct DrawOptions {
   enum class Geometry { kBillboards, kMesh, kSurface };
   Geometry geometry = Geometry::kBillboards;
   bool depth_clip = true;
-  bool color_by_camera = false;  // flat colour per chosen camera (the seed's figure 6(d))
+  bool color_by_camera = false;  // flat colour per chosen camera (the paper's figure 6(d))
   bool wireframe = false;        // mesh pass: edges only
   double billboard_scale = 1.7320508075688772;  // width / w, >= sqrt(3)
   double clip_scale = 0.8660254037844386;  // clip threshold / w: sqrt(3)/2, the farthest a
@@ -66,7 +66,7 @@ struct DrawOptions {
   double pixel_error = 0.5;      // clip widens where the texel's misplacement stays under this (px); 0: fixed clip
   bool clip_fuzzy = false;       // also clip facets without measured depth (reliability 0) in models
                                  // that have depth (silhouette-only models are always clipped)
-  int refine_steps = 2;          // texel refinement along the view ray (0 = the seed's texel at the billboard point)
+  int refine_steps = 2;          // texel refinement along the view ray (0 = the paper's texel at the billboard point)
   SelectionOptions selection;
   LodOptions lod;                // octree level of detail of the billboards (render/facet_lod.h)
   // Billboards only: > 0 draws the patch mesh where the geometry is reliable

@@ -1,7 +1,7 @@
 // The billboard renderer on a model whose truth is known exactly: a textured
 // square in the plane z = 0 seen by five cameras on an arc (with a lens
 // distortion), its camera textures computed analytically. Also: blending
-// weights, the stiff cases of DESIGN.md §12 for rendering, and the window
+// weights, the stiff cases of rendering, and the window
 // drawing the same pixels as the headless context.
 #include <gtest/gtest.h>
 #include <spdlog/fmt/fmt.h>

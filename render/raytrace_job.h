@@ -1,4 +1,6 @@
-// Scenes and the job behind `s2r raytrace` (DESIGN.md section 8, seed 001).
+// Scenes and the job behind `s2r raytrace` (Mochizuki and Makino, "An efficient
+// ray tracing with LOD control by human eyesight for immersive display
+// system"; docs/references.md).
 //
 // The immersive layout is a CAVE-like room of three screens, front, right and
 // floor, the walls of a cube (edge 3 m; x right, y up, -z forward, floor at
@@ -6,8 +8,8 @@
 // eye position through its own off-axis image plane, and the eye frame of the
 // visual field follows the gaze, not the walls.
 //
-// The seed's four scenes place 8 objects (the Stanford bunny, simplified to
-// N_max = 5804 triangles with levels down to N_min = 500, as the seed's cow)
+// The paper's four scenes place 8 objects (the Stanford bunny, simplified to
+// N_max = 5804 triangles with levels down to N_min = 500, as the paper's cow)
 // and one point light: A mirrors spread over every screen, B diffuse spread,
 // C mirrors on the front screen only, D diffuse on the front screen only.
 #pragma once
@@ -23,7 +25,8 @@
 #include "core/mesh.h"
 #include "core/report.h"
 #include "core/result.h"
-#include "core/raytracer.h"
+#include "trace/meshes.h"
+#include "trace/raytracer.h"
 
 namespace s2r {
 
@@ -35,14 +38,6 @@ Eigen::Vector3d cave_default_eye(double size = kCaveSize);
 // The three walls unfolded into one picture: front top left, right beside
 // it, floor below the front. Images must be the same square size.
 ImageU8 unfold_cave(const std::vector<ImageU8>& walls);
-
-// A mesh with its level-of-detail chain: simplified to at most `n_max`
-// triangles, then levels down to `n_min`. Vertex normals are computed.
-Result<RtMesh> lod_mesh(const Mesh& mesh, size_t n_max, size_t n_min, int levels);
-// A closed unit sphere (subdivided icosahedron), for tests and props.
-Mesh icosphere(int subdivisions);
-// An icosphere of this centre and radius as a one-level tracer mesh with normals.
-RtMesh sphere_mesh(int subdivisions, const Eigen::Vector3d& centre = Eigen::Vector3d::Zero(), double radius = 1);
 
 struct SeedSceneOptions {
   char scene = 'A';  // A..D

@@ -1,7 +1,7 @@
 // The renderer on the synthetic rig (data: the Stanford bunny scan): the
 // textured bunny reconstructed with three frames held out, then `s2r eval`'s
 // job at input and held-out views. Input views must reproduce their photos
-// (the seed's property); at held-out views depth clipping must be a measured
+// (the paper's property); at held-out views depth clipping must be a measured
 // gain over billboards without it, and the patch mesh where the geometry is
 // reliable (the hybrid) a gain over billboards everywhere. On the fuzzy
 // object billboards must beat the textured patch mesh by 2 dB, and the
@@ -47,7 +47,6 @@ Built build(const std::string& scene, const std::vector<int>& held) {
   job.session = b.session;
   job.out = b.model;
   job.holdout = held;
-  job.quiet = true;
   auto r = run_reconstruct_job(job);
   EXPECT_TRUE(r) << r.error().message;
   return b;

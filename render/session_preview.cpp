@@ -4,11 +4,11 @@
 
 #include <cmath>
 
-#include "capture/synth_rig.h"
 #include "core/image_io.h"
 #include "core/image_metrics.h"
 #include "core/mesh.h"
 #include "core/rgbd.h"
+#include "reconstruct/frame_inputs.h"
 #include "render/framebuffer.h"
 #include "render/gl_camera.h"
 #include "render/point_renderer.h"
@@ -22,23 +22,20 @@ Result<Preview> render_session_preview(GlContext& context, const Session& s, con
     return fail("--view " + std::to_string(o.view) + " is not a frame of this session (0.." +
                 std::to_string(s.frames.size() - 1) + ")");
   const Frame& target = s.frames[size_t(o.view)];
-  auto K = s.color_intrinsics(target);
+  auto K = resolve_color_intrinsics(s, target, nullptr);
   if (!K && s.depth) K = s.depth->intrinsics;
   if (!K) return fail("view " + std::to_string(o.view) + " has no camera intrinsics");
 
-  // Poses: given per frame, else the rig's ground truth, else only this view.
+  // Poses by reconstruct's rules (given, else the rig's ground truth); a
+  // session with neither is drawn from the chosen view alone.
   std::vector<std::optional<Eigen::Isometry3d>> poses(s.frames.size());
-  std::string pose_source = "given";
-  for (size_t i = 0; i < s.frames.size(); ++i) poses[i] = s.frames[i].world_from_camera;
-  if (!poses[size_t(o.view)]) {
-    if (auto truth = load_synth_truth(s.root); truth && truth->world_from_camera.size() == s.frames.size()) {
-      for (size_t i = 0; i < s.frames.size(); ++i) poses[i] = truth->world_from_camera[i];
-      pose_source = "ground_truth";
-    } else {
-      for (auto& p : poses) p.reset();
-      poses[size_t(o.view)] = Eigen::Isometry3d::Identity();
-      pose_source = "single_view";
-    }
+  std::string pose_source;
+  if (auto fp = resolve_frame_poses(s, {}, {})) {
+    poses = std::move(fp->world_from_camera);
+    pose_source = fp->kind == PoseSource::ground_truth ? "ground_truth" : "given";
+  } else {
+    poses[size_t(o.view)] = Eigen::Isometry3d::Identity();
+    pose_source = "single_view";
   }
 
   Preview out;

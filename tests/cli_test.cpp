@@ -16,7 +16,7 @@ struct Run {
   std::string out;
 };
 
-Run s2r(const std::string& args) {
+Run run_s2r(const std::string& args) {
   const std::string cmd = std::string(S2R_BINARY_DIR) + "/app/s2r " + args + " 2>&1";
   FILE* p = popen(cmd.c_str(), "r");
   std::string out;
@@ -27,7 +27,7 @@ Run s2r(const std::string& args) {
 }
 
 TEST(Cli, HelpListsTheDesignSubcommands) {
-  auto r = s2r("--help");
+  auto r = run_s2r("--help");
   EXPECT_EQ(r.code, 0);
   for (const char* sub : {"synth", "import", "devices", "capture", "calibrate", "register", "reconstruct", "render",
                           "eval", "view", "raytrace", "envmap", "bench", "preview", "inspect"})
@@ -47,7 +47,7 @@ TEST(Cli, SummaryGathersReportsPlotsAndImages) {
   std::ofstream(dir / "eval" / "eval.csv") << "frame,held_out,mask_pixels,psnr_db_billboards,ssim_billboards,"
                                               "coverage_billboards,frame_ms_billboards\n3,1,100,24.5,0.9,1,12.5\n";
   std::ofstream(dir / "broken") << "";
-  auto r = s2r("summary " + dir.string() + " --title Run");
+  auto r = run_s2r("summary " + dir.string() + " --title Run");
   ASSERT_EQ(r.code, 0) << r.out;
   std::ifstream in(dir / "index.html");
   const std::string html((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
@@ -58,7 +58,7 @@ TEST(Cli, SummaryGathersReportsPlotsAndImages) {
   EXPECT_EQ(html.find("session/color"), std::string::npos) << "session frames are not results";
   EXPECT_TRUE(fs::exists(dir / "eval" / "psnr_vs_frame_time.png"));
   EXPECT_TRUE(fs::exists(dir / "index.md"));
-  EXPECT_EQ(s2r("summary " + (dir / "missing").string()).code, 1);
+  EXPECT_EQ(run_s2r("summary " + (dir / "missing").string()).code, 1);
   fs::remove_all(dir);
 }
 
@@ -67,17 +67,17 @@ TEST(Cli, EnvmapBuildsChecksAndNamesBadInput) {
   fs::remove_all(dir);
   const std::string pano = std::string(S2R_DATA_DIR) + "/hdri/venice_sunset_1k.hdr";
   if (!fs::exists(pano)) GTEST_SKIP() << "real data not found: " << pano;
-  auto r = s2r("-q envmap " + pano + " --size 16 --check 40 --out " + (dir / "env.exr").string());
+  auto r = run_s2r("-q envmap " + pano + " --size 16 --check 40 --out " + (dir / "env.exr").string());
   ASSERT_EQ(r.code, 0) << r.out;
   for (const char* f : {"env.exr", "env.png", "report.json"}) EXPECT_TRUE(fs::exists(dir / f)) << f;
   std::ifstream report(dir / "report.json");
   const std::string text((std::istreambuf_iterator<char>(report)), std::istreambuf_iterator<char>());
   EXPECT_NE(text.find("mean_display_error"), std::string::npos) << text;
   EXPECT_NE(text.find("voxels_outside_unit_ball"), std::string::npos) << text;
-  r = s2r("envmap " + (dir / "missing.hdr").string() + " --out " + (dir / "x.exr").string());
+  r = run_s2r("envmap " + (dir / "missing.hdr").string() + " --out " + (dir / "x.exr").string());
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.out.find("not found"), std::string::npos) << r.out;
-  r = s2r("envmap " + pano + " --size 1 --out " + (dir / "x.exr").string());
+  r = run_s2r("envmap " + pano + " --size 1 --out " + (dir / "x.exr").string());
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.out.find("2..1024"), std::string::npos) << r.out;
   EXPECT_FALSE(fs::exists(dir / "x.exr"));
@@ -87,53 +87,53 @@ TEST(Cli, EnvmapBuildsChecksAndNamesBadInput) {
 TEST(Cli, SynthInspectPreviewWithReports) {
   const fs::path dir = fs::temp_directory_path() / ("s2r_cli_" + std::to_string(getpid()));
   fs::remove_all(dir);
-  auto r = s2r("-q synth --scene blob --views 6 --width 160 --height 120 --out " + (dir / "s").string());
+  auto r = run_s2r("-q synth --scene blob --views 6 --width 160 --height 120 --out " + (dir / "s").string());
   ASSERT_EQ(r.code, 0) << r.out;
   EXPECT_TRUE(fs::exists(dir / "s" / "report.json"));
-  r = s2r("inspect " + (dir / "s").string() + " --decode");
+  r = run_s2r("inspect " + (dir / "s").string() + " --decode");
   ASSERT_EQ(r.code, 0) << r.out;
   EXPECT_NE(r.out.find("6 frames"), std::string::npos) << r.out;
-  r = s2r("preview " + (dir / "s").string() + " --view 2 --out " + (dir / "p" / "v2.png").string());
+  r = run_s2r("preview " + (dir / "s").string() + " --view 2 --out " + (dir / "p" / "v2.png").string());
   ASSERT_EQ(r.code, 0) << r.out;
   EXPECT_TRUE(fs::exists(dir / "p" / "v2.png"));
   EXPECT_TRUE(fs::exists(dir / "p" / "v2_compare.png"));
   EXPECT_TRUE(fs::exists(dir / "p" / "report.json"));
   // Reconstruct: a model that loads, a report; a bad --voxel is a clear error.
-  r = s2r("-q reconstruct " + (dir / "s").string() + " --out " + (dir / "m").string());
+  r = run_s2r("-q reconstruct " + (dir / "s").string() + " --out " + (dir / "m").string());
   ASSERT_EQ(r.code, 0) << r.out;
   for (const char* f : {"model.json", "facets.bin", "facet_cameras.bin", "octree.bin", "patches.ply", "report.json",
                         "cameras/0000.exr"})
     EXPECT_TRUE(fs::exists(dir / "m" / f)) << f;
-  r = s2r("reconstruct " + (dir / "s").string() + " --out " + (dir / "m2").string() + " --voxel -3");
+  r = run_s2r("reconstruct " + (dir / "s").string() + " --out " + (dir / "m2").string() + " --voxel -3");
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.out.find("--voxel"), std::string::npos) << r.out;
-  r = s2r("reconstruct --help");
+  r = run_s2r("reconstruct --help");
   EXPECT_NE(r.out.find("--geometry"), std::string::npos) << r.out;
   // Render and eval the model (frame 3 held out), and their clear errors.
-  r = s2r("-q reconstruct " + (dir / "s").string() + " --out " + (dir / "m3").string() + " --holdout 3");
+  r = run_s2r("-q reconstruct " + (dir / "s").string() + " --out " + (dir / "m3").string() + " --holdout 3");
   ASSERT_EQ(r.code, 0) << r.out;
-  r = s2r("render " + (dir / "m3").string() + " --view 1 --out " + (dir / "r" / "v1.png").string());
+  r = run_s2r("render " + (dir / "m3").string() + " --view 1 --out " + (dir / "r" / "v1.png").string());
   ASSERT_EQ(r.code, 0) << r.out;
   EXPECT_TRUE(fs::exists(dir / "r" / "v1.png"));
   EXPECT_TRUE(fs::exists(dir / "r" / "report.json"));
-  r = s2r("render " + (dir / "m3").string() + " --view 3 --out " + (dir / "r" / "v3.png").string());
+  r = run_s2r("render " + (dir / "m3").string() + " --view 3 --out " + (dir / "r" / "v3.png").string());
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.out.find("--session"), std::string::npos) << r.out;
-  r = s2r("render " + (dir / "m3").string() + " --view 3 --session " + (dir / "s").string() + " --geometry mesh --out " +
+  r = run_s2r("render " + (dir / "m3").string() + " --view 3 --session " + (dir / "s").string() + " --geometry mesh --out " +
           (dir / "r" / "v3.png").string());
   EXPECT_EQ(r.code, 0) << r.out;
   // The panorama as backdrop: nothing glossy, so no environment map (the
   // report says so); a glossy floor and a sphere build one.
   const std::string pano = std::string(S2R_DATA_DIR) + "/hdri/venice_sunset_1k.hdr";
   if (!fs::exists(pano)) GTEST_SKIP() << "real data not found: " << pano;
-  r = s2r("render " + (dir / "m3").string() + " --view 1 --panorama " + pano + " --out " + (dir / "e1" / "v1.png").string());
+  r = run_s2r("render " + (dir / "m3").string() + " --view 1 --panorama " + pano + " --out " + (dir / "e1" / "v1.png").string());
   ASSERT_EQ(r.code, 0) << r.out;
   {
     std::ifstream f(dir / "e1" / "report.json");
     const std::string text((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
     EXPECT_NE(text.find("environment_map_not_needed_no_glossy_material"), std::string::npos) << text;
   }
-  r = s2r("render " + (dir / "m3").string() + " --view 1 --panorama " + pano + " --floor 0.3 --envmap-size 16 --sphere 0,0,0,0.01,0.1 --out " +
+  r = run_s2r("render " + (dir / "m3").string() + " --view 1 --panorama " + pano + " --floor 0.3 --envmap-size 16 --sphere 0,0,0,0.01,0.1 --out " +
           (dir / "e2" / "v1.png").string());
   ASSERT_EQ(r.code, 0) << r.out;
   {
@@ -143,19 +143,19 @@ TEST(Cli, SynthInspectPreviewWithReports) {
     EXPECT_NE(text.find("\"envmap_bound\": true"), std::string::npos) << text;
   }
   // A brick relief floor with material LOD: not glossy, so again no map.
-  r = s2r("render " + (dir / "m3").string() + " --view 1 --floor-relief 200,600 --out " + (dir / "e4" / "v1.png").string());
+  r = run_s2r("render " + (dir / "m3").string() + " --view 1 --floor-relief 200,600 --out " + (dir / "e4" / "v1.png").string());
   ASSERT_EQ(r.code, 0) << r.out;
   {
     std::ifstream f(dir / "e4" / "report.json");
     const std::string text((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
     EXPECT_NE(text.find("environment_map_not_needed_no_glossy_material"), std::string::npos) << text;
   }
-  r = s2r("render " + (dir / "m3").string() + " --view 1 --floor-relief 200,2000 --out " + (dir / "e4" / "v1.png").string());
+  r = run_s2r("render " + (dir / "m3").string() + " --view 1 --floor-relief 200,2000 --out " + (dir / "e4" / "v1.png").string());
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.out.find("--floor-relief"), std::string::npos) << r.out;
   // Octree LOD with the visual field: the report counts the coarse
   // billboards and what the normal cones culled; a bad gaze is named.
-  r = s2r("render " + (dir / "m3").string() + " --view 1 --lod --lod-texel 8 --lod-shape 4 --lod-luminance 10 --gaze centre "
+  r = run_s2r("render " + (dir / "m3").string() + " --view 1 --lod --lod-texel 8 --lod-shape 4 --lod-luminance 10 --gaze centre "
           "--min-weight 0.1 --out " + (dir / "l" / "v1.png").string());
   ASSERT_EQ(r.code, 0) << r.out;
   {
@@ -165,41 +165,41 @@ TEST(Cli, SynthInspectPreviewWithReports) {
     EXPECT_NE(text.find("facets_back_facing_by_normal_cone"), std::string::npos) << text;
     EXPECT_NE(text.find("facets_outside_visual_field"), std::string::npos) << text;
   }
-  r = s2r("render " + (dir / "m3").string() + " --view 1 --lod --gaze 10 --out " + (dir / "l" / "v1.png").string());
+  r = run_s2r("render " + (dir / "m3").string() + " --view 1 --lod --gaze 10 --out " + (dir / "l" / "v1.png").string());
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.out.find("--gaze"), std::string::npos) << r.out;
-  r = s2r("render " + (dir / "m3").string() + " --view 1 --floor 0.3 --out " + (dir / "e3" / "v1.png").string());
+  r = run_s2r("render " + (dir / "m3").string() + " --view 1 --floor 0.3 --out " + (dir / "e3" / "v1.png").string());
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.out.find("--panorama"), std::string::npos) << r.out;
-  r = s2r("render " + (dir / "m3").string() + " --view 1 --sphere 1,2,3 --out " + (dir / "e3" / "v1.png").string());
+  r = run_s2r("render " + (dir / "m3").string() + " --view 1 --sphere 1,2,3 --out " + (dir / "e3" / "v1.png").string());
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.out.find("--sphere"), std::string::npos) << r.out;
-  r = s2r("eval " + (dir / "m3").string() + " --session " + (dir / "s").string() + " --holdout 3,1 --out " + (dir / "e").string());
+  r = run_s2r("eval " + (dir / "m3").string() + " --session " + (dir / "s").string() + " --holdout 3,1 --out " + (dir / "e").string());
   ASSERT_EQ(r.code, 0) << r.out;
   for (const char* f : {"frame_0003.png", "frame_0001.png", "eval.csv", "report.json"}) EXPECT_TRUE(fs::exists(dir / "e" / f)) << f;
-  r = s2r("eval " + (dir / "m3").string() + " --session " + (dir / "s").string() + " --holdout 3,x");
+  r = run_s2r("eval " + (dir / "m3").string() + " --session " + (dir / "s").string() + " --holdout 3,x");
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.out.find("not a frame index"), std::string::npos) << r.out;
   // Ray-trace the model's patch mesh (coloured from its cameras) and a PLY;
   // the LOD image equals the full one inside the central field.
-  r = s2r("raytrace --model " + (dir / "m3").string() + " --size 64 --out " + (dir / "rt").string());
+  r = run_s2r("raytrace --model " + (dir / "m3").string() + " --size 64 --out " + (dir / "rt").string());
   ASSERT_EQ(r.code, 0) << r.out;
   for (const char* f : {"view.png", "full_view.png", "level_view.png", "report.json"}) EXPECT_TRUE(fs::exists(dir / "rt" / f)) << f;
   EXPECT_NE(r.out.find("psnr_central_field_db=100"), std::string::npos) << r.out;
-  r = s2r("raytrace --mesh " + (dir / "m" / "patches.ply").string() + " --size 48 --full --out " + (dir / "rt2").string());
+  r = run_s2r("raytrace --mesh " + (dir / "m" / "patches.ply").string() + " --size 48 --full --out " + (dir / "rt2").string());
   ASSERT_EQ(r.code, 0) << r.out;
-  r = s2r("raytrace --mesh " + (dir / "m" / "patches.ply").string() + " --gaze 0,0,0 --out " + (dir / "rt3").string());
+  r = run_s2r("raytrace --mesh " + (dir / "m" / "patches.ply").string() + " --gaze 0,0,0 --out " + (dir / "rt3").string());
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.out.find("gaze"), std::string::npos) << r.out;
-  r = s2r("raytrace --mesh " + (dir / "m" / "patches.ply").string() + " --eye 1,nan,2 --out " + (dir / "rt3").string());
+  r = run_s2r("raytrace --mesh " + (dir / "m" / "patches.ply").string() + " --eye 1,nan,2 --out " + (dir / "rt3").string());
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.out.find("--eye"), std::string::npos) << r.out;
   // Writing over an existing session is refused, not silently merged.
-  r = s2r("synth --scene blob --views 2 --out " + (dir / "s").string());
+  r = run_s2r("synth --scene blob --views 2 --out " + (dir / "s").string());
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.out.find("already holds a session"), std::string::npos) << r.out;
   // Bad input: a clear error and exit code 1.
-  r = s2r("preview " + (dir / "nope").string() + " --out " + (dir / "x.png").string());
+  r = run_s2r("preview " + (dir / "nope").string() + " --out " + (dir / "x.png").string());
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.out.find("session folder not found"), std::string::npos) << r.out;
   fs::remove_all(dir);
@@ -211,25 +211,25 @@ TEST(Cli, RegisterWritesPosesConfAndPlots) {
   const fs::path dir = fs::temp_directory_path() / ("s2r_cli_reg_" + std::to_string(getpid()));
   fs::remove_all(dir);
   // Usage errors are clear.
-  auto r = s2r("register --out " + (dir / "x").string());
+  auto r = run_s2r("register --out " + (dir / "x").string());
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.out.find("either a session or --stanford"), std::string::npos) << r.out;
   const std::string conf = std::string(S2R_DATA_DIR) + "/stanford_bunny/bun.conf";
-  r = s2r("register --stanford " + conf + " --perturb 5 --out " + (dir / "x").string());
+  r = run_s2r("register --stanford " + conf + " --perturb 5 --out " + (dir / "x").string());
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.out.find("DEG,M"), std::string::npos) << r.out;
-  r = s2r("register --stanford " + conf + " --voxels 0.004,-1 --out " + (dir / "x").string());
+  r = run_s2r("register --stanford " + conf + " --voxels 0.004,-1 --out " + (dir / "x").string());
   EXPECT_EQ(r.code, 1);
   // A synthetic session has no given poses: without a calibration there is no start.
-  r = s2r("-q synth --scene blob --views 4 --width 160 --height 120 --out " + (dir / "s").string());
+  r = run_s2r("-q synth --scene blob --views 4 --width 160 --height 120 --out " + (dir / "s").string());
   ASSERT_EQ(r.code, 0) << r.out;
-  r = s2r("-q register " + (dir / "s").string() + " --out " + (dir / "sr").string());
+  r = run_s2r("-q register " + (dir / "s").string() + " --out " + (dir / "sr").string());
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.out.find("calibration"), std::string::npos) << r.out;
   if (!fs::exists(conf)) GTEST_SKIP() << "real data not found";
   // The real scans, coarse levels only (quick): every output is there and the
   // .conf keeps the input's lines.
-  r = s2r("-q register --stanford " + conf + " --perturb 2,0.002 --voxels 0.004,0.002 --out " + (dir / "b").string());
+  r = run_s2r("-q register --stanford " + conf + " --perturb 2,0.002 --voxels 0.004,0.002 --out " + (dir / "b").string());
   ASSERT_EQ(r.code, 0) << r.out;
   for (const char* f : {"poses.json", "report.json", "convergence.csv", "views.csv", "pairs.csv", "bun.conf"})
     EXPECT_TRUE(fs::exists(dir / "b" / f)) << f;

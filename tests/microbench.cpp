@@ -37,10 +37,10 @@ void BM_RigRender(benchmark::State& state) {
 }
 BENCHMARK(BM_RigRender)->Args({320, 1})->Args({320, 2})->Unit(benchmark::kMillisecond);
 
-// The seed's scene C (8 mirror bunnies on the front screen) rendered whole
+// Mochizuki and Makino's scene C (8 mirror bunnies on the front screen) rendered whole
 // with every object held at one mesh level (0 = N_max): what a coarser level
 // saves per ray. Peer: level 0 in the same run.
-// The seed's scene C with `levels` mesh levels per bunny; skips the benchmark on failure.
+// Scene C with `levels` mesh levels per bunny; skips the benchmark on failure.
 std::optional<RtScene> scene_c(benchmark::State& state, int levels) {
   auto bunny = read_ply_mesh(data_dir() / "stanford_bunny" / "bun_zipper.ply");
   SeedSceneOptions so;
@@ -222,7 +222,7 @@ void BM_ReconstructJob(benchmark::State& state) {
   job.session = session;
   job.out = session.parent_path() / "model";
   job.voxel_m = 1e-4 * double(state.range(0));
-  job.geometry = "depth";
+  job.geometry = Geometry::depth;
   job.per_region = false;
   job.textures = false;
   set_progress_enabled(false);

@@ -1,4 +1,4 @@
-// Path safety (DESIGN.md §2): nothing written inside a session, a model or a
+// Path safety (docs/formats.md): nothing written inside a session, a model or a
 // Stanford .conf makes the program read or write outside its folder: no
 // absolute names, no '..', no symbolic link that leads out, wherever it is.
 #include <gtest/gtest.h>

@@ -1,5 +1,5 @@
-// The exact Phong lobe of an environment panorama (DESIGN.md sections 9 and
-// 12): the brute-force reference a multi-scale environment map is measured
+// The exact Phong lobe of an environment panorama (Okumura
+// 2003): the brute-force reference a multi-scale environment map is measured
 // against, and what the ray tracer returns for a glossy reflection.
 //
 //   I(r, L) = sum_w P(w) max(0, r.w)^L dOmega(w) / sum_w max(0, r.w)^L dOmega(w)

@@ -1,4 +1,4 @@
-#include "core/raytracer.h"
+#include "trace/raytracer.h"
 
 #include <algorithm>
 #include <cmath>

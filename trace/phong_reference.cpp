@@ -1,4 +1,4 @@
-#include "core/phong_reference.h"
+#include "trace/phong_reference.h"
 
 #include <algorithm>
 #include <cmath>

@@ -1,4 +1,4 @@
-// Visual-field level of detail (DESIGN.md section 8, seed 001): how much
+// Visual-field level of detail (Mochizuki and Makino; docs/references.md): how much
 // detail a ray gets from where it lies in the viewer's field of view.
 //
 // A direction D' is taken into the eye frame (E_f gaze, E_r right, E_u up):

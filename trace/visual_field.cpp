@@ -1,4 +1,4 @@
-#include "core/visual_field.h"
+#include "trace/visual_field.h"
 
 #include <cmath>
 

@@ -1,9 +1,9 @@
-// CPU ray tracer (DESIGN.md section 8, seed 001): Whitted-style recursion on
+// CPU ray tracer (Mochizuki and Makino; docs/references.md): Whitted-style recursion on
 // Embree BVHs with point lights, shadows, mirror reflection, refraction and
 // Phong materials over textured or vertex-coloured meshes, multithreaded over
-// tiles; and the seed's visual-field level of detail per primary ray.
+// tiles; and Mochizuki and Makino's visual-field level of detail per primary ray.
 //
-// Level of detail, per primary ray (core/visual_field.h gives the level):
+// Level of detail, per primary ray (trace/visual_field.h gives the level):
 //   - level 0: not traced, the pixel gets the background;
 //   - reflections and refractions allowed: floor(level * reflect_max);
 //     secondary and shadow rays inherit the primary ray's level; a branch
@@ -13,7 +13,7 @@
 // Switching detail costs nothing per ray: every object's levels are built
 // once (one BVH each, sharing the vertices), and for each level quantum
 // (level rounded up to 1/32) a top-level scene instances the level each
-// object needs. A ray only picks which top-level scene to intersect. The seed
+// object needs. A ray only picks which top-level scene to intersect. The paper
 // changed polygon counts per frame and measured a slowdown where objects
 // filled every screen; prebuilding is what avoids it (`s2r bench raytrace`).
 //
@@ -32,7 +32,7 @@
 // I (kd max(0, n.l) + ks max(0, r.v)^s), computed as exp(s log(r.v)). The
 // pixel is (1 - k_r - k_t - k_g) local + k_r R + k_t T + k_g G, G the
 // environment's exact Phong lobe about the mirror direction (no occlusion
-// test on the lobe, as in seed 002); under total internal reflection the k_t
+// test on the lobe, as in Okumura 2003); under total internal reflection the k_t
 // share goes to the reflected ray. Shadow rays treat every
 // object as opaque. Colours are linear; images are stored 8-bit, clamped.
 #pragma once
@@ -50,8 +50,8 @@
 
 #include "core/image.h"
 #include "core/result.h"
-#include "core/phong_reference.h"
-#include "core/visual_field.h"
+#include "trace/phong_reference.h"
+#include "trace/visual_field.h"
 
 namespace s2r {
 
@@ -68,7 +68,7 @@ struct RtMaterial {
   int texture = -1;                            // RtScene::textures index (needs uvs)
   // Per-pixel roughness for the glossy lobe: RtScene::textures index, the first
   // channel / 255 (bilinear, like `texture`); the exponent at each hit is then
-  // roughness_to_exponent(roughness) (core/phong_reference.h) instead of glossy_exponent.
+  // roughness_to_exponent(roughness) (trace/phong_reference.h) instead of glossy_exponent.
   int roughness_texture = -1;
   // Optional procedural colour (a printed pattern): called at every hit with
   // the world point and the ray's unit direction; multiplies kd like a texture.
