@@ -102,10 +102,12 @@ Outcome run(const Rig& rig, RegistrationOptions o, double perturb_deg = 0, doubl
   return out;
 }
 
-// Under sanitizers (S2R_SANITIZED) each case costs minutes: the suite keeps
-// the vase's two modes and the four-view ring, which reach the same code
-// (preparation, correspondences, both cost functions, slides, flags); the
-// rest run in the optimised build (scripts/test runs the slow label there).
+// Under sanitizers (S2R_SANITIZED) a twelve-view case costs minutes (the
+// vase's two registrations took 600 s of the test's 777): the suite keeps the
+// four-view ring there, which reaches the same code (preparation,
+// correspondences, the solver, flags); reconstruct_registration_test covers
+// slides, flips and outliers instrumented, and every case here runs in the
+// optimised build (scripts/test runs the slow label there).
 #ifdef S2R_SANITIZED
 #define S2R_OPTIMISED_ONLY() GTEST_SKIP() << "runs in the optimised build only (too slow under sanitizers)"
 #else
@@ -140,6 +142,7 @@ TEST(RigRegistration, TexturedObjectTurntableModeCorrectsTableError) {
 }
 
 TEST(RigRegistration, SymmetricObjectSlidesInFreeModeAndHoldsOnTheTurntable) {
+  S2R_OPTIMISED_ONLY();
   const Rig& r = rig("vase", 12);
   RegistrationOptions o;
   auto free = run(r, o, 3, 0.003);
