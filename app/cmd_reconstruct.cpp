@@ -141,7 +141,6 @@ void add_reconstruct(CLI::App& app) {
       auto held = frame_list(*holdout, "--holdout");
       if (!held) return error(held.error().message);
       job->holdout = *held;
-      if (auto st = job->validate(); !st) return error(in_flag_terms(st.error(), flags));
       auto r = run_reconstruct_job(*job);
       if (!r) return error(in_flag_terms(r.error(), flags));
       return finish(*r, job->out / "report.json");

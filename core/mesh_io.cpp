@@ -13,6 +13,7 @@
 #include <functional>
 #include <limits>
 #include <tuple>
+#include <type_traits>
 #include <string>
 #include <vector>
 
@@ -265,14 +266,12 @@ Result<PlyContents> parse_ply(const fs::path& path, bool want_faces) {
       (w[1] == "num_cols" ? c.width : c.height) = std::strtoull(w[2].c_str(), nullptr, 10);
   });
   uint64_t record = 0;  // the vertex record being read
-  int channel = 0;      // red, green, blue of that record
   parser.element_definition_callback([&](const std::string& name, std::size_t count) -> ply::ply_parser::element_callbacks_type {
     if (name == "vertex") {
       if (c.width == 0 || c.height == 0) c.width = count, c.height = 1;
       c.xyz.reserve(3 * count);
       return {[&] {
                 record = c.vertices;
-                channel = 0;
                 c.xyz.insert(c.xyz.end(), 3, 0.0f);
                 if (c.has_rgb) c.rgb.insert(c.rgb.end(), 3, uint8_t(0));
               },
@@ -307,22 +306,20 @@ Result<PlyContents> parse_ply(const fs::path& path, bool want_faces) {
     const int k = colour_of(property);
     if (element != "vertex" || k < 0) return std::function<void(ply::uint8)>{};
     c.has_rgb = true;
-    return std::function<void(ply::uint8)>([&, k](ply::uint8 v) {
-      if (c.rgb.size() < 3 * (record + 1)) c.rgb.resize(3 * (record + 1), 0);
-      c.rgb[3 * record + size_t(k)] = v;
-    });
+    // has_rgb is set by the header, before the first record makes its slots.
+    return std::function<void(ply::uint8)>([&, k](ply::uint8 v) { c.rgb[3 * record + size_t(k)] = v; });
   };
   auto refuse_axes = [&]<class T>(const std::string& element, const std::string& property) {
     if (element == "vertex" && axis_of(property) >= 0 && c.bad.empty())
       c.bad = "vertex property '" + property + "' is not a float (only float x, y, z are read)";
     return std::function<void(T)>{};
   };
-  ply::ply_parser::at<ply::int8>(scalars) = [&](const std::string& e, const std::string& p) { return refuse_axes.template operator()<ply::int8>(e, p); };
-  ply::ply_parser::at<ply::int16>(scalars) = [&](const std::string& e, const std::string& p) { return refuse_axes.template operator()<ply::int16>(e, p); };
-  ply::ply_parser::at<ply::uint16>(scalars) = [&](const std::string& e, const std::string& p) { return refuse_axes.template operator()<ply::uint16>(e, p); };
-  ply::ply_parser::at<ply::int32>(scalars) = [&](const std::string& e, const std::string& p) { return refuse_axes.template operator()<ply::int32>(e, p); };
-  ply::ply_parser::at<ply::uint32>(scalars) = [&](const std::string& e, const std::string& p) { return refuse_axes.template operator()<ply::uint32>(e, p); };
-  ply::ply_parser::at<ply::float64>(scalars) = [&](const std::string& e, const std::string& p) { return refuse_axes.template operator()<ply::float64>(e, p); };
+  [&]<class... T>(std::type_identity<T>...) {
+    ((ply::ply_parser::at<T>(scalars) = [&](const std::string& e, const std::string& p) {
+       return refuse_axes.template operator()<T>(e, p);
+     }), ...);
+  }(std::type_identity<ply::int8>{}, std::type_identity<ply::int16>{}, std::type_identity<ply::uint16>{},
+    std::type_identity<ply::int32>{}, std::type_identity<ply::uint32>{}, std::type_identity<ply::float64>{});
   parser.scalar_property_definition_callbacks(scalars);
   // Lists: a face's vertex indices, a range grid cell's vertices.
   ply::ply_parser::list_property_definition_callbacks_type lists;
@@ -339,12 +336,15 @@ Result<PlyContents> parse_ply(const fs::path& path, bool want_faces) {
                        std::function<void()>{});
     return Callbacks{};
   };
-  ply::ply_parser::at<ply::uint8, ply::int32>(lists) = [&](const std::string& e, const std::string& p) { return index_list.template operator()<ply::uint8, ply::int32>(e, p); };
-  ply::ply_parser::at<ply::uint8, ply::uint32>(lists) = [&](const std::string& e, const std::string& p) { return index_list.template operator()<ply::uint8, ply::uint32>(e, p); };
-  ply::ply_parser::at<ply::uint16, ply::int32>(lists) = [&](const std::string& e, const std::string& p) { return index_list.template operator()<ply::uint16, ply::int32>(e, p); };
-  ply::ply_parser::at<ply::uint16, ply::uint32>(lists) = [&](const std::string& e, const std::string& p) { return index_list.template operator()<ply::uint16, ply::uint32>(e, p); };
-  ply::ply_parser::at<ply::uint32, ply::int32>(lists) = [&](const std::string& e, const std::string& p) { return index_list.template operator()<ply::uint32, ply::int32>(e, p); };
-  ply::ply_parser::at<ply::uint32, ply::uint32>(lists) = [&](const std::string& e, const std::string& p) { return index_list.template operator()<ply::uint32, ply::uint32>(e, p); };
+  // Every size type with signed and unsigned 32-bit indices.
+  [&]<class... S>(std::type_identity<S>...) {
+    ((ply::ply_parser::at<S, ply::int32>(lists) = [&](const std::string& e, const std::string& p) {
+       return index_list.template operator()<S, ply::int32>(e, p);
+     }), ...);
+    ((ply::ply_parser::at<S, ply::uint32>(lists) = [&](const std::string& e, const std::string& p) {
+       return index_list.template operator()<S, ply::uint32>(e, p);
+     }), ...);
+  }(std::type_identity<ply::uint8>{}, std::type_identity<ply::uint16>{}, std::type_identity<ply::uint32>{});
   parser.list_property_definition_callbacks(lists);
 
   const std::string at = "'" + path.string() + "': ";
