@@ -5,7 +5,7 @@
 #include <numbers>
 #include <thread>
 
-#include "app/commands.h"
+#include "app/run.h"
 #include "calibrate/intrinsics.h"
 #include "calibrate/turntable_axis.h"
 #include "capture/pixel_formats.h"
@@ -1081,45 +1081,19 @@ int bench_material(const fs::path& out, int repeats) {
 
 }  // namespace
 
-void add_bench_commands(CLI::App& app) {
-  auto* sub = app.add_subcommand("bench", "Error-vs-time sweeps: CSV + PNG plot + report.json, peers in the same run");
-  auto stage = std::make_shared<std::string>();
-  auto out = std::make_shared<std::string>();
-  auto repeats = std::make_shared<int>(3);
-  auto scene = std::make_shared<std::string>("blob");
-  sub->add_option("stage", *stage, "rig (render time vs image size), capture (per-frame decode + write overhead), calibrate (error vs views), "
-                  "register (Stanford bunny ring-scan pose error vs seconds: ours on all ten scans and on the ring alone, against PCL ICP chained around the ring; --repeats = seeds), "
-                  "reconstruct (surface error and build seconds vs facet size on the rig, against Open3D TSDF + marching cubes), "
-                  "render (held-out PSNR vs 1280x720 frame ms per drawing setting, rig bunny and fuzzy, textured meshes in the same run), "
-                  "raytrace (Mochizuki and Makino's four CAVE scenes: visual-field LOD time vs the full render, gaze forward and down, PSNR inside "
-                  "the central field and over all pixels), envmap (environment map error against brute-force Phong vs build seconds "
-                  "and memory, per size, weight threshold and pyramid resolution; every bundled panorama; a GL glossy sphere against the ray "
-                  "tracer), material (texture / bump / parallax occlusion mapping switched per pixel by Tsutsumi's thresholds, "
-                  "frame time and PSNR against parallax everywhere, on a board and a roof model)")
-      ->required();
-  sub->add_option("--out", *out, "output folder")->required();
-  sub->add_option("--repeats", *repeats, "renders per point (median)")->capture_default_str();
-  sub->add_option("--scene", *scene, "rig scene for the rig sweep")->capture_default_str();
-  auto size = std::make_shared<int>(512);
-  sub->add_option("--size", *size, "raytrace: pixels per CAVE screen side (the paper: 256; 512 steadies the timings)")->capture_default_str();
-  auto voxels = std::make_shared<int>(10000);
-  sub->add_option("--voxels", *voxels, "envmap: voxels checked against brute force at the default setting (a tenth elsewhere)")
-      ->capture_default_str();
-  sub->callback([=] {
-    set_runner([=] {
-      if (*stage == "rig") return bench_rig(*out, std::max(1, *repeats), *scene);
-      if (*stage == "capture") return bench_capture(*out, std::max(5, *repeats * 10));
-      if (*stage == "calibrate") return bench_calibrate(*out);
-      if (*stage == "register") return bench_register(*out, std::max(1, *repeats));
-      if (*stage == "reconstruct") return bench_reconstruct(*out, *scene);
-      if (*stage == "render") return bench_render(*out, *scene);
-      if (*stage == "raytrace") return bench_raytrace(*out, std::max(7, *repeats), *size);
-      if (*stage == "envmap") return bench_envmap(*out, std::max(100, *voxels));
-      if (*stage == "material") return bench_material(*out, std::max(5, *repeats));
-      std::fprintf(stderr, "s2r bench %s: not yet available in this build (only 'rig', 'capture', 'calibrate', 'register', 'reconstruct', 'render', 'raytrace', 'envmap' and 'material')\n", stage->c_str());
-      return 2;
-    });
-  });
+int run(const BenchArgs& a) {
+  const fs::path out = a.out;
+  if (a.stage == "rig") return bench_rig(out, std::max(1, a.repeats), a.scene);
+  if (a.stage == "capture") return bench_capture(out, std::max(5, a.repeats * 10));
+  if (a.stage == "calibrate") return bench_calibrate(out);
+  if (a.stage == "register") return bench_register(out, std::max(1, a.repeats));
+  if (a.stage == "reconstruct") return bench_reconstruct(out, a.scene);
+  if (a.stage == "render") return bench_render(out, a.scene);
+  if (a.stage == "raytrace") return bench_raytrace(out, std::max(7, a.repeats), a.size);
+  if (a.stage == "envmap") return bench_envmap(out, std::max(100, a.voxels));
+  if (a.stage == "material") return bench_material(out, std::max(5, a.repeats));
+  std::fprintf(stderr, "s2r bench %s: not yet available in this build (only 'rig', 'capture', 'calibrate', 'register', 'reconstruct', 'render', 'raytrace', 'envmap' and 'material')\n", a.stage.c_str());
+  return 2;
 }
 
 }  // namespace s2r::cli

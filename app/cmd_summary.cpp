@@ -12,7 +12,7 @@
 
 #include <nlohmann/json.hpp>
 
-#include "app/commands.h"
+#include "app/run.h"
 #include "core/atomic_file.h"
 #include "core/json_fields.h"
 #include "core/sweep.h"
@@ -176,15 +176,6 @@ int run_summary(const fs::path& folder, const std::string& title) {
 
 }  // namespace
 
-void add_summary_command(CLI::App& app) {
-  auto* sub = app.add_subcommand("summary",
-                                 "One page for a run's folder: every report.json as a table, held-out error against "
-                                 "frame time, every PNG (writes FOLDER/index.html and index.md)");
-  auto folder = std::make_shared<std::string>();
-  auto title = std::make_shared<std::string>("scan2render run");
-  sub->add_option("folder", *folder, "folder the run wrote (searched recursively)")->required();
-  sub->add_option("--title", *title, "page title");
-  sub->callback([=] { set_runner([=] { return run_summary(*folder, *title); }); });
-}
+int run(const SummaryArgs& a) { return run_summary(a.folder, a.title); }
 
 }  // namespace s2r::cli

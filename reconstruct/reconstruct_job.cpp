@@ -52,22 +52,6 @@ struct Timer {
 
 }  // namespace
 
-std::string_view geometry_name(Geometry g) {
-  switch (g) {
-    case Geometry::automatic: return "auto";
-    case Geometry::depth: return "depth";
-    case Geometry::hull: return "hull";
-    case Geometry::both: return "both";
-  }
-  return "auto";
-}
-
-std::optional<Geometry> parse_geometry(std::string_view name) {
-  for (Geometry g : {Geometry::automatic, Geometry::depth, Geometry::hull, Geometry::both})
-    if (geometry_name(g) == name) return g;
-  return std::nullopt;
-}
-
 Status ReconstructJob::validate() const {
   if (!(target_error_px > 0)) return fail(ErrorCode::invalid, "target_error_px: must be > 0 pixels");
   if (!(truncation_voxels >= 1)) return fail(ErrorCode::invalid, "truncation_voxels: must be at least 1 voxel");

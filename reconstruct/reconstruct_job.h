@@ -22,8 +22,22 @@ namespace s2r {
 // silhouettes, both, or `automatic` (depth, plus the hull against a uniform
 // backdrop; the hull alone without depth).
 enum class Geometry { automatic, depth, hull, both };
-std::string_view geometry_name(Geometry g);                   // "auto", "depth", "hull", "both"
-std::optional<Geometry> parse_geometry(std::string_view name);  // the inverse
+// "auto", "depth", "hull", "both" (inline: the command line's front names
+// the default without linking the stage).
+constexpr std::string_view geometry_name(Geometry g) {
+  switch (g) {
+    case Geometry::automatic: return "auto";
+    case Geometry::depth: return "depth";
+    case Geometry::hull: return "hull";
+    case Geometry::both: return "both";
+  }
+  return "auto";
+}
+constexpr std::optional<Geometry> parse_geometry(std::string_view name) {  // the inverse
+  for (Geometry g : {Geometry::automatic, Geometry::depth, Geometry::hull, Geometry::both})
+    if (geometry_name(g) == name) return g;
+  return std::nullopt;
+}
 
 struct ReconstructJob {
   std::filesystem::path session;

@@ -1,5 +1,7 @@
 #include "reconstruct/register_job.h"
 
+#include <cmath>
+
 #include <fmt/format.h>
 
 #include "capture/ground_truth.h"
@@ -10,13 +12,27 @@
 namespace s2r {
 namespace fs = std::filesystem;
 
+Status RegisterJob::validate() const {
+  if (session.empty() == stanford_conf.empty())
+    return fail(ErrorCode::invalid, "stanford_conf: give either a session or Stanford scans (not both)");
+  if (out.empty()) return fail(ErrorCode::invalid, "out: an output folder is required");
+  if (!(table_sigma_deg > 0) || !std::isfinite(table_sigma_deg))
+    return fail(ErrorCode::invalid, "table_sigma_deg: must be > 0 degrees");
+  if (perturb_deg && !(*perturb_deg >= 0 && std::isfinite(*perturb_deg)))
+    return fail(ErrorCode::invalid, "perturb: the angle must be >= 0 degrees");
+  if (perturb_m && !(*perturb_m >= 0 && std::isfinite(*perturb_m)))
+    return fail(ErrorCode::invalid, "perturb: the shift must be >= 0 metres");
+  for (double v : options.voxel_m)
+    if (!(v > 0) || !std::isfinite(v)) return fail(ErrorCode::invalid, "voxel_m: every size must be a positive length");
+  if (options.threads < 0) return fail(ErrorCode::invalid, "threads: must be >= 0 (0 = all cores)");
+  return {};
+}
+
 Result<Report> run_register_job(const RegisterJob& job) {
   Stopwatch clock;
   Report report;
   report.stage = "register";
-  if (job.session.empty() == job.stanford_conf.empty())
-    return fail("give either a session or --stanford CONF (not both)");
-  if (job.out.empty()) return fail("--out is required");
+  if (auto st = job.validate(); !st) return std::unexpected(st.error());
   RegistrationOptions o = job.options;
   // Load.
   Result<RegistrationInput> in = fail("no input");

@@ -23,6 +23,10 @@ struct RegisterJob {
   uint64_t seed = 1;
   std::string fixed_name;  // the view held fixed (default: the first)
   double table_sigma_deg = 0.2;  // turntable mode: the table angle's repeatability
+
+  // The options' own ranges, an error naming the field ("table_sigma_deg:
+  // must be > 0 degrees"); what depends on the input is checked by the job.
+  Status validate() const;
 };
 
 Result<Report> run_register_job(const RegisterJob& job);

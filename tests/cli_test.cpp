@@ -34,6 +34,56 @@ TEST(Cli, HelpListsTheDesignSubcommands) {
     EXPECT_NE(r.out.find(sub), std::string::npos) << sub << "\n" << r.out;
 }
 
+// The front answers --help itself and links no stage library: that is what
+// makes every command's help start at once (docs/testing.md, start-up).
+TEST(Cli, FrontLinksOnlyTheCxxRuntime) {
+  const std::string cmd = "LD_TRACE_LOADED_OBJECTS=1 " + std::string(S2R_BINARY_DIR) + "/app/s2r 2>&1";
+  FILE* p = popen(cmd.c_str(), "r");
+  ASSERT_NE(p, nullptr);
+  std::array<char, 512> buf;
+  int libraries = 0;
+  std::string all;
+  while (fgets(buf.data(), buf.size(), p)) {
+    const std::string line = buf.data();
+    all += line;
+    if (line.find("linux-vdso") != std::string::npos) continue;
+    ++libraries;
+    for (const char* heavy : {"OpenImageIO", "opencv", "vtk", "pcl", "ceres", "openvdb", "embree", "camera", "glfw"})
+      EXPECT_EQ(line.find(heavy), std::string::npos) << heavy << " in the front:\n" << line;
+  }
+  pclose(p);
+  EXPECT_LE(libraries, 6) << all;  // libstdc++, libm, libgcc_s, libc, ld-linux
+}
+
+TEST(Cli, FrontHelpIsTheEngines) {
+  for (const char* sub : {"", "synth", "import", "inspect", "devices", "capture", "calibrate", "calibrate intrinsics",
+                          "calibrate depth", "calibrate axis", "calibrate markers", "register", "reconstruct", "preview",
+                          "render", "eval", "view", "raytrace", "envmap", "bench", "summary"}) {
+    const std::string args = std::string(sub) + " --help";
+    const auto front = run_s2r(args);
+    const std::string engine_cmd = std::string(S2R_BINARY_DIR) + "/app/s2r-engine " + args + " 2>&1";
+    FILE* p = popen(engine_cmd.c_str(), "r");
+    ASSERT_NE(p, nullptr);
+    std::string engine;
+    std::array<char, 512> buf;
+    while (fgets(buf.data(), buf.size(), p)) engine += buf.data();
+    pclose(p);
+    for (size_t at; (at = engine.find("s2r-engine")) != std::string::npos;) engine.replace(at, 10, "s2r");
+    EXPECT_EQ(front.code, 0) << sub;
+    EXPECT_EQ(front.out, engine) << sub;
+    EXPECT_NE(front.out.find("Usage"), std::string::npos) << sub;
+  }
+}
+
+// RegisterJob::validate names its fields; the command line says the flags.
+TEST(Cli, RegisterOptionsNameTheFlag) {
+  auto r = run_s2r("register --stanford missing.conf --table-sigma-deg 0 --out /tmp/s2r_cli_register_none");
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.out.find("--table-sigma-deg: must be > 0 degrees"), std::string::npos) << r.out;
+  r = run_s2r("register --stanford missing.conf --threads -2 --out /tmp/s2r_cli_register_none");
+  EXPECT_NE(r.out.find("--threads: must be >= 0"), std::string::npos) << r.out;
+}
+
 TEST(Cli, SummaryGathersReportsPlotsAndImages) {
   const fs::path dir = fs::temp_directory_path() / ("s2r_cli_summary_" + std::to_string(getpid()));
   fs::remove_all(dir);
@@ -213,7 +263,7 @@ TEST(Cli, RegisterWritesPosesConfAndPlots) {
   // Usage errors are clear.
   auto r = run_s2r("register --out " + (dir / "x").string());
   EXPECT_EQ(r.code, 1);
-  EXPECT_NE(r.out.find("either a session or --stanford"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("--stanford: give either a session or Stanford scans"), std::string::npos) << r.out;
   const std::string conf = std::string(S2R_DATA_DIR) + "/stanford_bunny/bun.conf";
   r = run_s2r("register --stanford " + conf + " --perturb 5 --out " + (dir / "x").string());
   EXPECT_EQ(r.code, 1);

@@ -1,30 +1,39 @@
-// Subcommand registration for the s2r CLI. Each cmd_*.cpp adds its
-// subcommands to the app and returns the exit code through `run`.
+// What the engine (`s2r-engine`) runs for each subcommand: one `run` per
+// arguments type of app/args.h, returning the exit code (0 ok, 1 failure,
+// 2 usage / not available); and the helpers the runs share.
 #pragma once
 
-#include <CLI/CLI.hpp>
-
 #include <filesystem>
-#include <functional>
 #include <optional>
-#include <utility>
 #include <string>
+#include <utility>
 #include <vector>
 
+#include "app/args.h"
 #include "core/report.h"
 #include "core/result.h"
 
 namespace s2r::cli {
 
-// Exit codes: 0 ok, 1 failure, 2 usage / not available.
-using Runner = std::function<int()>;
-void set_runner(Runner r);
-
-void add_data_commands(CLI::App& app);    // synth, import, devices, capture, calibrate
-void add_reconstruct_commands(CLI::App& app);  // register, reconstruct
-void add_render_commands(CLI::App& app);  // preview, render, eval, view, raytrace, envmap
-void add_bench_commands(CLI::App& app);   // bench
-void add_summary_command(CLI::App& app);  // summary
+int run(const SynthArgs& a);  // app/cmd_data.cpp
+int run(const ImportArgs& a);
+int run(const InspectArgs& a);
+int run(const DevicesArgs& a);
+int run(const CaptureArgs& a);
+int run(const IntrinsicsArgs& a);
+int run(const DepthCalibrationArgs& a);
+int run(const AxisArgs& a);
+int run(const MarkersArgs& a);
+int run(const RegisterArgs& a);  // app/cmd_reconstruct.cpp
+int run(const ReconstructArgs& a);
+int run(const PreviewArgs& a);  // app/cmd_render.cpp
+int run(const RenderArgs& a);
+int run(const EvalArgs& a);
+int run(const ViewArgs& a);
+int run(const RaytraceArgs& a);
+int run(const EnvmapArgs& a);
+int run(const BenchArgs& a);    // app/cmd_bench.cpp
+int run(const SummaryArgs& a);  // app/cmd_summary.cpp
 
 // Print the report's brief line and write it to `path` (or OUT/report.json).
 int finish(const Report& report, const std::filesystem::path& path);

@@ -1,22 +1,18 @@
-// s2r: turntable scan -> photoreal model, one binary (docs/cli.md).
+// s2r-engine: parses the command line as the front did and runs the chosen
+// subcommand (docs/cli.md). The front (`s2r`) execs it once a command is to
+// run; it links every stage.
 #include <malloc.h>
-#include <unistd.h>
 
-#include <cstdio>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <sstream>
 
-#include "app/commands.h"
+#include "app/cli.h"
+#include "app/run.h"
 #include "core/progress.h"
 
 namespace s2r::cli {
-
-namespace {
-Runner g_runner;
-}
-
-void set_runner(Runner r) { g_runner = std::move(r); }
 
 int finish(const Report& report, const std::filesystem::path& path) {
   std::fprintf(stderr, "%s\n", report.brief().c_str());
@@ -73,17 +69,10 @@ int main(int argc, char** argv) {
   // rig's reconstruct, a tenth of the run was page faults).
   mallopt(M_MMAP_THRESHOLD, 32 << 20);  // glibc's largest
   mallopt(M_TRIM_THRESHOLD, 1 << 30);
-  CLI::App app{
-      "s2r - scan2render: turntable capture -> calibration -> reconstruction -> rendering.\n"
-      "Every computing subcommand writes report.json (errors, counts, skipped work, seconds)."};
-  app.require_subcommand(1);
+  CLI::App app;
+  Chosen chosen;
   bool quiet = false;
-  app.add_flag("-q,--quiet", quiet, "no progress bars");
-  add_data_commands(app);
-  add_reconstruct_commands(app);
-  add_render_commands(app);
-  add_bench_commands(app);
-  add_summary_command(app);
+  add_commands(app, chosen, quiet);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -92,5 +81,10 @@ int main(int argc, char** argv) {
   if (quiet) s2r::set_progress_enabled(false);
   // Keep libcamera's probing quiet unless the user asked for its logs.
   setenv("LIBCAMERA_LOG_LEVELS", "*:ERROR", 0);
-  return g_runner ? g_runner() : 2;
+  return std::visit(
+      [](const auto& args) -> int {
+        if constexpr (std::is_same_v<std::decay_t<decltype(args)>, std::monostate>) return 2;
+        else return run(*args);
+      },
+      chosen);
 }

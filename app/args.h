@@ -1,0 +1,146 @@
+// What each subcommand's flags bind to. The front (`s2r`, app/front.cpp)
+// parses into these and hands the command to the engine (`s2r-engine`,
+// app/engine.cpp), which parses the same way and runs it (app/run.h).
+// Flags bind straight to the libraries' option structs where there is one, so
+// each default is written once; a field here is only text the run parses.
+// Only headers that declare options belong here: the front links none of the
+// stage libraries.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <variant>
+#include <vector>
+
+#include "calibrate/table_markers.h"
+#include "capture/import_datasets.h"
+#include "capture/synth_rig.h"
+#include "reconstruct/reconstruct_job.h"
+#include "reconstruct/register_job.h"
+#include "render/envmap.h"
+#include "render/model_eval.h"
+#include "render/raytrace_job.h"
+#include "render/session_preview.h"
+
+namespace s2r::cli {
+
+// ---- make and transform data (app/cmd_data.cpp) ----
+struct SynthArgs {
+  SynthOptions options;
+  std::string out, report;
+};
+struct ImportArgs {
+  std::string kind, path, out, report;
+  ImportOptions options;
+};
+struct InspectArgs {
+  std::string session;
+  bool decode = false;
+};
+struct DevicesArgs {};
+struct CaptureArgs {
+  std::string out, replay, camera, depth, turntable, record, report, scene = "blob";
+  bool sim = false, resume = false;
+  int steps = 24, width = 640, height = 480, settle_ms = 300, flush = -1;
+  uint64_t seed = 7;
+  std::vector<std::string> faults;
+};
+struct IntrinsicsArgs {
+  std::string images, board, out, report;
+  double reject = 3.0;
+  bool fix_k3 = false;
+};
+struct DepthCalibrationArgs {
+  std::string session, board = "chessboard:9x6:0.02", out;
+};
+struct AxisArgs {
+  std::string session, board = "chessboard:9x6:0.02", out, intrinsics, report;
+};
+struct MarkersArgs {
+  std::string session, out, report;
+  MarkerOptions options;
+};
+
+// ---- the reconstruct stage (app/cmd_reconstruct.cpp) ----
+struct RegisterArgs {
+  RegisterJob job;
+  std::string mode = "free", perturb, voxels;
+};
+struct ReconstructArgs {
+  ReconstructJob job;
+  std::string voxel = "auto", geometry = std::string(geometry_name(job.geometry)), holdout;
+};
+
+// ---- drawing (app/cmd_render.cpp) ----
+// The drawing options every model command shares; only the two options that
+// need parsing are held as text.
+struct DrawArgs {
+  DrawOptions d;
+  std::string geometry = "billboards";
+  std::string gaze;  // "" off, "centre", or X,Y pixels
+};
+// Backdrop, glossy floor and props around a model (render, view).
+struct EnvArgs {
+  std::string panorama, envmap, floor_map, floor_relief, up = "z";
+  double floor = -1, floor_glossy = 0.5;
+  std::vector<std::string> spheres;
+  int envmap_size = 128;
+  bool clamp = false;
+};
+struct PreviewArgs {
+  std::string session, out, report;
+  PreviewOptions options;
+};
+struct RenderArgs {
+  std::string model, out, pose, report;
+  int view = -1;
+  double scale = 1;
+  DrawArgs draw;
+  FrameSource source;
+  EnvArgs env;
+};
+struct EvalArgs {
+  std::string model, out, holdout;
+  bool no_baselines = false;
+  DrawArgs draw;
+  FrameSource source;
+};
+struct ViewArgs {
+  std::string model, screenshot, pose;
+  int width = 1280, height = 720, frames = 0;
+  DrawArgs draw;
+  EnvArgs env;
+};
+struct RaytraceArgs {
+  RaytraceJob job;
+  std::string eye, gaze, out;
+  bool full = false, no_compare = false;
+};
+struct EnvmapArgs {
+  EnvmapJob job;
+  std::string report;
+};
+
+// ---- benches and the run page (app/cmd_bench.cpp, app/cmd_summary.cpp) ----
+struct BenchArgs {
+  std::string stage, out, scene = "blob";
+  int repeats = 3, size = 512, voxels = 10000;
+};
+struct SummaryArgs {
+  std::string folder, title = "scan2render run";
+};
+
+// The command a parse chose, with its arguments. Every subcommand's type is
+// listed here once: the engine runs each through `run(const A&)` (app/run.h),
+// so a command without a runner does not link.
+using Chosen =
+    std::variant<std::monostate, std::shared_ptr<SynthArgs>, std::shared_ptr<ImportArgs>, std::shared_ptr<InspectArgs>,
+                 std::shared_ptr<DevicesArgs>, std::shared_ptr<CaptureArgs>, std::shared_ptr<IntrinsicsArgs>,
+                 std::shared_ptr<DepthCalibrationArgs>, std::shared_ptr<AxisArgs>, std::shared_ptr<MarkersArgs>,
+                 std::shared_ptr<RegisterArgs>, std::shared_ptr<ReconstructArgs>, std::shared_ptr<PreviewArgs>,
+                 std::shared_ptr<RenderArgs>, std::shared_ptr<EvalArgs>, std::shared_ptr<ViewArgs>,
+                 std::shared_ptr<RaytraceArgs>, std::shared_ptr<EnvmapArgs>, std::shared_ptr<BenchArgs>,
+                 std::shared_ptr<SummaryArgs>>;
+
+}  // namespace s2r::cli

@@ -1,0 +1,56 @@
+// The command line's top level, and the flags of bench and summary (run by
+// app/cmd_bench.cpp and app/cmd_summary.cpp).
+#include "app/cli.h"
+
+namespace s2r::cli {
+
+namespace {
+
+void add_bench(CLI::App& app, Chosen& chosen) {
+  auto* sub = app.add_subcommand("bench", "Error-vs-time sweeps: CSV + PNG plot + report.json, peers in the same run");
+  auto a = std::make_shared<BenchArgs>();
+  sub->add_option("stage", a->stage, "rig (render time vs image size), capture (per-frame decode + write overhead), calibrate (error vs views), "
+                  "register (Stanford bunny ring-scan pose error vs seconds: ours on all ten scans and on the ring alone, against PCL ICP chained around the ring; --repeats = seeds), "
+                  "reconstruct (surface error and build seconds vs facet size on the rig, against Open3D TSDF + marching cubes), "
+                  "render (held-out PSNR vs 1280x720 frame ms per drawing setting, rig bunny and fuzzy, textured meshes in the same run), "
+                  "raytrace (Mochizuki and Makino's four CAVE scenes: visual-field LOD time vs the full render, gaze forward and down, PSNR inside "
+                  "the central field and over all pixels), envmap (environment map error against brute-force Phong vs build seconds "
+                  "and memory, per size, weight threshold and pyramid resolution; every bundled panorama; a GL glossy sphere against the ray "
+                  "tracer), material (texture / bump / parallax occlusion mapping switched per pixel by Tsutsumi's thresholds, "
+                  "frame time and PSNR against parallax everywhere, on a board and a roof model)")
+      ->required();
+  sub->add_option("--out", a->out, "output folder")->required();
+  sub->add_option("--repeats", a->repeats, "renders per point (median)")->capture_default_str();
+  sub->add_option("--scene", a->scene, "rig scene for the rig sweep")->capture_default_str();
+  sub->add_option("--size", a->size, "raytrace: pixels per CAVE screen side (the paper: 256; 512 steadies the timings)")->capture_default_str();
+  sub->add_option("--voxels", a->voxels, "envmap: voxels checked against brute force at the default setting (a tenth elsewhere)")
+      ->capture_default_str();
+  sub->callback([a, &chosen] { chosen = a; });
+}
+
+void add_summary(CLI::App& app, Chosen& chosen) {
+  auto* sub = app.add_subcommand("summary",
+                                 "One page for a run's folder: every report.json as a table, held-out error against "
+                                 "frame time, every PNG (writes FOLDER/index.html and index.md)");
+  auto a = std::make_shared<SummaryArgs>();
+  sub->add_option("folder", a->folder, "folder the run wrote (searched recursively)")->required();
+  sub->add_option("--title", a->title, "page title");
+  sub->callback([a, &chosen] { chosen = a; });
+}
+
+}  // namespace
+
+void add_commands(CLI::App& app, Chosen& chosen, bool& quiet) {
+  app.description(
+      "s2r - scan2render: turntable capture -> calibration -> reconstruction -> rendering.\n"
+      "Every computing subcommand writes report.json (errors, counts, skipped work, seconds).");
+  app.require_subcommand(1);
+  app.add_flag("-q,--quiet", quiet, "no progress bars");
+  add_data_commands(app, chosen);
+  add_reconstruct_commands(app, chosen);
+  add_render_commands(app, chosen);
+  add_bench(app, chosen);
+  add_summary(app, chosen);
+}
+
+}  // namespace s2r::cli

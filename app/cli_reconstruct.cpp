@@ -1,0 +1,85 @@
+// Flags of the reconstruct stage's subcommands: register, reconstruct (run by
+// app/cmd_reconstruct.cpp). Both bind straight to their jobs.
+#include "app/cli.h"
+
+namespace s2r::cli {
+
+namespace {
+
+void add_register(CLI::App& app, Chosen& chosen) {
+  auto* sub = app.add_subcommand(
+      "register",
+      "Register all views at once (Ceres): point-to-plane between every overlapping pair, coarse to fine.\n"
+      "Input: a session (depth or scanner points; initial poses from --calibration's turntable axis and\n"
+      "the table angles, or the session's given poses) or Stanford range scans (--stanford CONF).\n"
+      "Writes OUT/poses.json, OUT/report.json, OUT/views.csv, OUT/pairs.csv, OUT/convergence.csv/png\n"
+      "(RMS and pose error against seconds) and, for --stanford, OUT/<CONF> in the input's own conventions.");
+  auto a = std::make_shared<RegisterArgs>();
+  RegisterJob& job = a->job;
+  sub->add_option("session", job.session, "capture session folder");
+  sub->add_option("--stanford", job.stanford_conf, "Stanford .conf with its range scans beside it");
+  sub->add_option("--calibration", job.calibration, "calibration file (turntable axis, intrinsics)");
+  sub->add_option("--out", job.out, "output folder")->required();
+  sub->add_option("--mode", a->mode,
+                  "free (every pose free; slides reported) or turntable (rotation about the calibrated axis by the "
+                  "table angle plus a small correction)")
+      ->check(CLI::IsMember({"free", "turntable"}))
+      ->capture_default_str();
+  sub->add_option("--perturb", a->perturb, "DEG,M: start from the input poses turned by DEG and shifted by M metres");
+  sub->add_option("--seed", job.seed, "random seed of --perturb")->capture_default_str();
+  sub->add_option("--fixed", job.fixed_name, "name of the view held fixed (default: the first)");
+  sub->add_option("--voxels", a->voxels, "coarse-to-fine voxel sizes in metres, e.g. 0.004,0.002,0.001 (default: from the extent)");
+  sub->add_option("--table-sigma-deg", job.table_sigma_deg, "turntable mode: table angle repeatability")->capture_default_str();
+  sub->add_option("--threads", job.options.threads, "worker threads (0 = all cores)")->capture_default_str();
+  sub->add_flag_callback("--no-flip", [&job] { job.options.try_flip = false; }, "do not try flagged views turned by 180 deg");
+  sub->callback([a, &chosen] { chosen = a; });
+}
+
+void add_reconstruct(CLI::App& app, Chosen& chosen) {
+  auto* sub = app.add_subcommand(
+      "reconstruct",
+      "Fuse a session's registered views into a model of microfacet billboards.\n"
+      "Depth is fused into a sparse signed-distance volume (OpenVDB); against a uniform backdrop the\n"
+      "silhouettes add a visual hull, whose voxels that depth does not explain become fuzzy facets\n"
+      "(hair, strands); without depth the hull alone gives the geometry. Every voxel with evidence becomes\n"
+      "a facet; reliable voxels keep the voxel size, unreliable and fuzzy regions merge into facets twice\n"
+      "as large. Each camera's image is stored with the distance to the fused surface along every ray.\n"
+      "Poses: --poses, else the session's given poses, else --calibration's turntable axis and the table\n"
+      "angles, else the synthetic rig's ground truth.\n"
+      "Writes OUT/model.json, facets.bin, facet_cameras.bin, cameras/NNNN.exr (RGBA + Z), surface.ply\n"
+      "and report.json (seconds per step, facets, memory, voxel sizes, predicted texel error, skipped work).");
+  auto a = std::make_shared<ReconstructArgs>();
+  ReconstructJob& job = a->job;
+  sub->add_option("session", job.session, "capture session folder")->required();
+  sub->add_option("--out", job.out, "model folder")->required();
+  sub->add_option("--poses", job.poses, "registered poses (s2r register)");
+  sub->add_option("--calibration", job.calibration, "calibration file (intrinsics, depth extrinsic, turntable axis)");
+  sub->add_option("--voxel", a->voxel,
+                  "facet size w in metres, or 'auto': the largest w whose texel error bound (w/2) sin(gap/2) stays under "
+                  "--target-error pixels at the cameras' distance, halved for reliable regions")
+      ->capture_default_str();
+  sub->add_option("--target-error", job.target_error_px, "on-screen texel error in pixels that --voxel auto keeps under")
+      ->capture_default_str();
+  sub->add_option("--geometry", a->geometry,
+                  "depth (fusion), hull (silhouettes only), both, or auto (depth, plus the hull against a uniform backdrop)")
+      ->check(CLI::IsMember({"auto", "depth", "hull", "both"}))
+      ->capture_default_str();
+  sub->add_option("--holdout", a->holdout, "I,J,...: frames left out entirely (for evaluation)");
+  sub->add_option("--truncation", job.truncation_voxels, "signed-distance truncation in voxels")->capture_default_str();
+  sub->add_flag_callback("--uniform", [&job] { job.per_region = false; },
+                         "one facet size everywhere (no larger facets for unreliable regions)");
+  sub->add_flag_callback("--no-textures", [&job] { job.textures = false; },
+                         "do not write the per-camera RGBA + depth textures (the cameras' depth is then cast only where "
+                         "the facets' visibility needs it)");
+  sub->add_option("--threads", job.threads, "worker threads (0 = all cores)")->capture_default_str();
+  sub->callback([a, &chosen] { chosen = a; });
+}
+
+}  // namespace
+
+void add_reconstruct_commands(CLI::App& app, Chosen& chosen) {
+  add_register(app, chosen);
+  add_reconstruct(app, chosen);
+}
+
+}  // namespace s2r::cli
