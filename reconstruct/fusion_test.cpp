@@ -73,6 +73,54 @@ DepthObservation obs(const Ring& r, size_t i) { return {&r.depth[i], 1e-4, camer
 
 }  // namespace
 
+TEST(VoxelChoice, GivenBoundPixelLimitsAndExtent) {
+  VoxelRequest r;
+  r.target_error_px = 0.5;
+  r.focal_px = 600;
+  r.near_distance_m = 0.4;
+  r.delta_rad = 7.5 * kDeg;
+  r.pixel_m = 0.4 / 600;
+  r.extent_m = 0.3;
+  // Given: used as it is; per-region sizes reach twice it.
+  r.given_m = 0.003;
+  VoxelChoice c = choose_voxel(r);
+  EXPECT_FALSE(c.automatic);
+  EXPECT_EQ(c.base_m, 0.003);
+  EXPECT_EQ(c.coarse_m, 0.006);
+  EXPECT_TRUE(c.warnings.empty());
+  // Automatic: half the bound for per-region sizes, the bound itself as the coarse size.
+  r.given_m.reset();
+  c = choose_voxel(r);
+  const double bound = voxel_for_error(0.5, 600, 0.4, 7.5 * kDeg);
+  ASSERT_LT(bound, 8 * r.pixel_m);
+  EXPECT_TRUE(c.automatic);
+  EXPECT_FALSE(c.limited_by_pixels);
+  EXPECT_DOUBLE_EQ(c.bound_m, bound);
+  EXPECT_DOUBLE_EQ(c.base_m, bound / 2);
+  EXPECT_DOUBLE_EQ(c.coarse_m, bound);
+  // Cameras 0.5 deg apart: the bound would allow huge facets; 8 input pixels hold it.
+  r.delta_rad = 0.25 * kDeg;
+  c = choose_voxel(r);
+  EXPECT_TRUE(c.limited_by_pixels);
+  EXPECT_DOUBLE_EQ(c.bound_m, 8 * r.pixel_m);
+  // A tiny target error: no finer than two input pixels, with a warning.
+  r.delta_rad = 7.5 * kDeg;
+  r.target_error_px = 0.01;
+  c = choose_voxel(r);
+  EXPECT_DOUBLE_EQ(c.base_m, 2 * r.pixel_m);
+  EXPECT_EQ(c.warnings.size(), 1u);
+  // A small object: at most a quarter of its extent.
+  r.target_error_px = 0.5;
+  r.extent_m = 0.004;
+  c = choose_voxel(r);
+  EXPECT_DOUBLE_EQ(c.base_m, 0.001);
+  // A given voxel below an input pixel is kept, with a warning.
+  r.given_m = 0.1 * r.pixel_m;
+  c = choose_voxel(r);
+  EXPECT_DOUBLE_EQ(c.base_m, 0.1 * r.pixel_m);
+  EXPECT_EQ(c.warnings.size(), 1u);
+}
+
 TEST(ErrorBound, SeedExampleAndInverse) {
   // 30 deg between cameras: a view is at most 15 deg from the nearest one.
   EXPECT_NEAR(texel_error_bound(1.0, 15 * kDeg), 0.129, 0.001);

@@ -7,6 +7,7 @@
 #include <unordered_map>
 
 #include <Eigen/Eigenvalues>
+#include <spdlog/fmt/fmt.h>
 
 #include "core/parallel.h"
 
@@ -20,6 +21,42 @@ double voxel_for_error(double target_px, double focal_px, double distance_m, dou
   // f (w/2) sin(delta) / z <= target  =>  w <= 2 target z / (f sin(delta)).
   const double s = std::sin(std::clamp(delta_rad, 1e-6, std::numbers::pi / 2));
   return 2 * target_px * distance_m / (focal_px * s);
+}
+
+VoxelChoice choose_voxel(const VoxelRequest& r) {
+  VoxelChoice c;
+  double w0;
+  if (r.given_m) {
+    w0 = *r.given_m;
+  } else {
+    // Densely spaced cameras allow large facets by the bound alone; a facet is
+    // still kept within kMaxFacetPixels input pixels, beyond which it blurs
+    // detail the photos hold and its clipping window (w/2) stops telling
+    // surfaces apart.
+    constexpr double kMaxFacetPixels = 8;
+    c.automatic = true;
+    double w_max = voxel_for_error(r.target_error_px, r.focal_px, r.near_distance_m, r.delta_rad);
+    if (w_max > kMaxFacetPixels * r.pixel_m) {
+      w_max = kMaxFacetPixels * r.pixel_m;
+      c.limited_by_pixels = true;
+    }
+    c.bound_m = w_max;
+    w0 = r.per_region ? w_max / 2 : w_max;
+    if (w0 < 2 * r.pixel_m) {
+      c.warnings.push_back(fmt::format("the error bound allows {:.2f} mm facets, under two input pixels ({:.2f} mm): "
+                                       "using two pixels (cameras this close in angle need no finer facets)",
+                                       1e3 * w0, 2e3 * r.pixel_m));
+      w0 = 2 * r.pixel_m;
+    }
+    if (w0 > r.extent_m / 4) w0 = r.extent_m / 4;
+  }
+  if (w0 < r.pixel_m)
+    c.warnings.push_back(fmt::format("voxel {:.3f} mm is below one input pixel at the viewing distance ({:.3f} mm): "
+                                     "facets finer than the photos",
+                                     1e3 * w0, 1e3 * r.pixel_m));
+  c.base_m = w0;
+  c.coarse_m = r.per_region ? 2 * w0 : w0;
+  return c;
 }
 
 Intrinsics visibility_grid(const Intrinsics& K, int stride) {

@@ -6,6 +6,8 @@
 
 #include <cstdint>
 #include <functional>
+#include <optional>
+#include <string>
 #include <vector>
 
 #include <Eigen/Geometry>
@@ -30,6 +32,29 @@ namespace s2r {
 double texel_error_bound(double w, double delta_rad);
 // Largest w whose bound stays under `target_px` on screen.
 double voxel_for_error(double target_px, double focal_px, double distance_m, double delta_rad);
+
+// The facet size of a reconstruction: given, or the largest the error bound
+// allows at the cameras' spacing and distance (`--voxel auto`), within
+// limits of the photos' resolution and the object's size.
+struct VoxelRequest {
+  std::optional<double> given_m;  // nullopt: from the bound
+  double target_error_px = 0.5;
+  bool per_region = true;         // the base size is half the bound: unreliable regions get 2x
+  double focal_px = 0;            // the input cameras' focal length
+  double near_distance_m = 0;     // cameras to the object's near side
+  double delta_rad = 0;           // the texel angle (half the widest camera gap, seen at the near side)
+  double pixel_m = 0;             // an input pixel at the viewing distance
+  double extent_m = 0;            // the object box's largest side
+};
+struct VoxelChoice {
+  double base_m = 0;     // w: the finest facets
+  double coarse_m = 0;   // the largest facets (2 w with per-region sizes)
+  bool automatic = false;
+  double bound_m = 0;    // automatic: the bound's w before the limits
+  bool limited_by_pixels = false;  // automatic: held at 8 input pixels, not the bound
+  std::vector<std::string> warnings;
+};
+VoxelChoice choose_voxel(const VoxelRequest& r);
 
 struct CameraSpacing {
   double max_gap_rad = 0;       // the widest angle from a camera to its nearest neighbour, seen from `centre`

@@ -50,200 +50,230 @@ struct Timer {
   }
 };
 
-}  // namespace
 
-Status ReconstructJob::validate() const {
-  if (!(target_error_px > 0)) return fail(ErrorCode::invalid, "target_error_px: must be > 0 pixels");
-  if (!(truncation_voxels >= 1)) return fail(ErrorCode::invalid, "truncation_voxels: must be at least 1 voxel");
-  if (voxel_m && !(*voxel_m > 0 && std::isfinite(*voxel_m)))
-    return fail(ErrorCode::invalid, "voxel_m: must be 'auto' or a positive number of metres");
-  if (threads < 0) return fail(ErrorCode::invalid, "threads: must be >= 0 (0 = all cores)");
-  return {};
-}
+// What the job reads: the session, its poses and calibration, the frames held
+// out, and the depth sensor they are read with.
+struct Inputs {
+  Session s;
+  FramePoses poses;
+  std::optional<Calibration> cal;
+  std::set<int> held;
+  DepthSensorModel sensor;
+  const Calibration* calibration() const { return cal ? &*cal : nullptr; }
+};
 
-Result<Report> run_reconstruct_job(const ReconstructJob& job) {
-  Stopwatch total;
-  Report rep;
-  rep.stage = "reconstruct";
-  Timer timer{rep, {}};
-  if (auto st = job.validate(); !st) return std::unexpected(st.error());
+// A frame the model is built from: a pose and a colour image, not held out.
+struct View {
+  int frame;
+  Intrinsics K;
+  Eigen::Isometry3d world_from_camera;
+  ImageU8 color;
+  ImageU16 depth;
+};
 
+// Where the object is, how far the cameras are and how far apart.
+struct SceneExtent {
+  Eigen::Vector3d centre;
+  Eigen::AlignedBox3d box;
+  std::optional<Eigen::AlignedBox3d> crop;  // object-centre sessions: fusion keeps to the box
+  double view_distance = 0, near_distance = 0;
+  CameraSpacing spacing;
+  double delta = 0;  // the texel angle at the object's near side
+  double focal = 0, pixel_m = 0;
+};
+
+// Where the geometry comes from, with the silhouettes when the hull is used.
+struct GeometryPlan {
+  Geometry mode = Geometry::automatic;
+  std::vector<ImageU8> masks;
+  bool uses_depth() const { return mode == Geometry::depth || mode == Geometry::both; }
+  bool uses_hull() const { return mode == Geometry::hull || mode == Geometry::both; }
+};
+
+// The surface octree and its finest crack-free patch mesh (the textured-mesh
+// baseline), built in a task of its own.
+struct OctreePart {
+  std::vector<OctreeRecord> records;
+  int max_level = 0;
+  std::map<std::string, double> counts;
+  bool patch_mesh = false;
+};
+
+Result<Inputs> load_inputs(const ReconstructJob& job) {
   // Image headers are not probed here: the frames the job uses are decoded
-  // below and their sizes checked against the intrinsics then.
+  // by load_views and their sizes checked against the intrinsics then.
   auto session = load_session(job.session, {.check_images = false});
   if (!session) return std::unexpected(session.error());
-  const Session& s = *session;
-  auto poses = resolve_frame_poses(s, job.poses, job.calibration);
+  Inputs in{std::move(*session), {}, {}, {}, {}};
+  auto poses = resolve_frame_poses(in.s, job.poses, job.calibration);
   if (!poses) return std::unexpected(poses.error());
-  std::optional<Calibration> cal;
+  in.poses = std::move(*poses);
   if (!job.calibration.empty()) {
     auto c = load_calibration(job.calibration);
     if (!c) return std::unexpected(c.error());
-    cal = *c;
+    in.cal = *c;
   }
-  std::set<int> held(job.holdout.begin(), job.holdout.end());
-  for (int h : held)
-    if (h < 0 || size_t(h) >= s.frames.size())
+  in.held = std::set<int>(job.holdout.begin(), job.holdout.end());
+  for (int h : in.held)
+    if (h < 0 || size_t(h) >= in.s.frames.size())
       return fail(ErrorCode::invalid, "holdout: frame " + std::to_string(h) + " is not in the session (frames 0.." +
-                                          std::to_string(int(s.frames.size()) - 1) + ")");
+                                          std::to_string(int(in.s.frames.size()) - 1) + ")");
+  in.sensor = resolve_depth_sensor(in.s, in.calibration());
+  return in;
+}
 
-  // Depth sensor model.
-  const DepthSensorModel sensor = resolve_depth_sensor(s, cal ? &*cal : nullptr);
-  const std::optional<Intrinsics>& depth_K = sensor.intrinsics;
-  const Eigen::Isometry3d& color_from_depth = sensor.color_from_depth;
-  const double unit = sensor.unit_m;
-
-  // Views: frames with a pose and a colour image, not held out.
-  struct View {
-    int frame;
-    Intrinsics K;
-    Eigen::Isometry3d world_from_camera;
-    ImageU8 color;
-    ImageU16 depth;
+// The views, decoded in parallel; errors are reported in frame order, and the
+// frames left out are counted in the report.
+Result<std::vector<View>> load_views(const ReconstructJob& job, const Inputs& in, Report& rep) {
+  const Session& s = in.s;
+  const std::optional<Intrinsics>& depth_K = in.sensor.intrinsics;
+  // Colour is needed for silhouettes and textures only.
+  const bool want_color = job.textures || job.geometry != Geometry::depth;
+  auto wanted = [&](size_t i) {
+    return !in.held.count(int(i)) && in.poses.world_from_camera[i] && !s.frames[i].color.empty();
   };
+  std::vector<std::optional<Result<ImageU8>>> colors(s.frames.size());
+  std::vector<std::optional<Result<ImageU16>>> depths(s.frames.size());
+  parallel_for(int(s.frames.size()), job.threads, [&](int k) {
+    const size_t i = size_t(k);
+    if (!wanted(i)) return;
+    if (want_color) colors[i] = load_color(s, s.frames[i]);
+    if (!s.frames[i].depth.empty()) depths[i] = load_depth(s, s.frames[i]);
+  });
   std::vector<View> views;
-  {
-    // Colour is needed for silhouettes and textures only.
-    const bool want_color = job.textures || job.geometry != Geometry::depth;
-    auto wanted = [&](size_t i) {
-      return !held.count(int(i)) && poses->world_from_camera[i] && !s.frames[i].color.empty();
-    };
-    // The images are decoded in parallel; errors are reported below in frame order.
-    std::vector<std::optional<Result<ImageU8>>> colors(s.frames.size());
-    std::vector<std::optional<Result<ImageU16>>> depths(s.frames.size());
-    parallel_for(int(s.frames.size()), job.threads, [&](int k) {
-      const size_t i = size_t(k);
-      if (!wanted(i)) return;
-      if (want_color) colors[i] = load_color(s, s.frames[i]);
-      if (!s.frames[i].depth.empty()) depths[i] = load_depth(s, s.frames[i]);
-    });
-    Progress progress("load frames", s.frames.size());
-    for (size_t i = 0; i < s.frames.size(); ++i, progress.tick()) {
-      const Frame& f = s.frames[i];
-      if (held.count(int(i))) {
-        rep.skipped["held_out_views"] += 1;
-        continue;
-      }
-      if (!poses->world_from_camera[i]) {
-        rep.skipped["frames_without_pose"] += 1;
-        continue;
-      }
-      if (f.color.empty()) {
-        rep.skipped["frames_without_color"] += 1;
-        continue;
-      }
-      View v;
-      v.frame = int(i);
-      auto K = resolve_color_intrinsics(s, f, cal ? &*cal : nullptr);
-      if (!K) return fail("frame " + std::to_string(i) + ": no colour intrinsics (session or --calibration)");
-      v.K = *K;
-      v.world_from_camera = *poses->world_from_camera[i];
-      auto size_differs = [&](const auto& img, const Intrinsics& K, const std::string& file) {
-        return img.width != K.width || img.height != K.height
-                   ? fail(fmt::format("frame {}: '{}' is {}x{} but the intrinsics say {}x{}", i, file, img.width, img.height,
-                                      K.width, K.height))
-                   : Status{};
-      };
-      if (want_color) {
-        Result<ImageU8>& c = *colors[i];
-        if (!c) return std::unexpected(c.error());
-        if (auto st = size_differs(*c, v.K, f.color); !st) return std::unexpected(st.error());
-        v.color = std::move(*c);
-      }
-      if (!f.depth.empty()) {
-        if (!depth_K) return fail("session has depth frames but no depth intrinsics");
-        Result<ImageU16>& d = *depths[i];
-        if (!d) return std::unexpected(d.error());
-        if (auto st = size_differs(*d, *depth_K, f.depth); !st) return std::unexpected(st.error());
-        v.depth = std::move(*d);
-        if (cal && cal->axis) {
-          if (const size_t off = mask_off_table(v.depth, unit, *depth_K, color_from_depth, *cal->axis))
-            rep.skipped["depth_samples_off_the_turntable"] += double(off);
-        }
-        // A view whose depth is all zero (or unreadable as numbers) counts as without depth.
-        if (std::none_of(v.depth.data.begin(), v.depth.data.end(), [](uint16_t x) { return x != 0; })) {
-          rep.warnings.push_back(fmt::format("frame {}: depth has no valid sample; used for colour only", i));
-          v.depth = {};
-        }
-      }
-      views.push_back(std::move(v));
+  Progress progress("load frames", s.frames.size());
+  for (size_t i = 0; i < s.frames.size(); ++i, progress.tick()) {
+    const Frame& f = s.frames[i];
+    if (in.held.count(int(i))) {
+      rep.skipped["held_out_views"] += 1;
+      continue;
     }
-    progress.done();
+    if (!in.poses.world_from_camera[i]) {
+      rep.skipped["frames_without_pose"] += 1;
+      continue;
+    }
+    if (f.color.empty()) {
+      rep.skipped["frames_without_color"] += 1;
+      continue;
+    }
+    View v;
+    v.frame = int(i);
+    auto K = resolve_color_intrinsics(s, f, in.calibration());
+    if (!K) return fail("frame " + std::to_string(i) + ": no colour intrinsics (session or --calibration)");
+    v.K = *K;
+    v.world_from_camera = *in.poses.world_from_camera[i];
+    auto size_differs = [&](const auto& img, const Intrinsics& K, const std::string& file) {
+      return img.width != K.width || img.height != K.height
+                 ? fail(fmt::format("frame {}: '{}' is {}x{} but the intrinsics say {}x{}", i, file, img.width, img.height,
+                                    K.width, K.height))
+                 : Status{};
+    };
+    if (want_color) {
+      Result<ImageU8>& c = *colors[i];
+      if (!c) return std::unexpected(c.error());
+      if (auto st = size_differs(*c, v.K, f.color); !st) return std::unexpected(st.error());
+      v.color = std::move(*c);
+    }
+    if (!f.depth.empty()) {
+      if (!depth_K) return fail("session has depth frames but no depth intrinsics");
+      Result<ImageU16>& d = *depths[i];
+      if (!d) return std::unexpected(d.error());
+      if (auto st = size_differs(*d, *depth_K, f.depth); !st) return std::unexpected(st.error());
+      v.depth = std::move(*d);
+      if (in.cal && in.cal->axis) {
+        if (const size_t off = mask_off_table(v.depth, in.sensor.unit_m, *depth_K, in.sensor.color_from_depth, *in.cal->axis))
+          rep.skipped["depth_samples_off_the_turntable"] += double(off);
+      }
+      // A view whose depth is all zero (or unreadable as numbers) counts as without depth.
+      if (std::none_of(v.depth.data.begin(), v.depth.data.end(), [](uint16_t x) { return x != 0; })) {
+        rep.warnings.push_back(fmt::format("frame {}: depth has no valid sample; used for colour only", i));
+        v.depth = {};
+      }
+    }
+    views.push_back(std::move(v));
   }
+  progress.done();
   if (views.empty()) return fail("no frame to reconstruct from (every frame held out, without pose or without colour)");
-  timer.lap("load");
-  const bool has_depth = std::any_of(views.begin(), views.end(), [](const View& v) { return !v.depth.empty(); });
+  return views;
+}
 
-  // Silhouettes (object-centre sessions against a uniform backdrop).
-  std::vector<ImageU8> masks;
+// Silhouettes against a uniform backdrop (object-centre sessions), and the
+// geometry mode `auto` resolves to; what the mode leaves out is reported.
+Result<GeometryPlan> plan_geometry(const ReconstructJob& job, const Session& s, const std::vector<View>& views, Report& rep) {
+  const bool has_depth = std::any_of(views.begin(), views.end(), [](const View& v) { return !v.depth.empty(); });
+  GeometryPlan plan;
   bool masks_ok = s.layout == Layout::kObjectCentre && job.geometry != Geometry::depth;
   double worst_spread = 0;
   if (masks_ok) {
-    masks.resize(views.size());
+    plan.masks.resize(views.size());
     for (size_t i = 0; i < views.size() && masks_ok; ++i) {
       double spread = 0;
       auto m = backdrop_mask(views[i].color, 0, &spread);
       worst_spread = std::max(worst_spread, spread);
       if (!m) masks_ok = false;
-      else masks[i] = std::move(*m);
+      else plan.masks[i] = std::move(*m);
     }
   }
-  Geometry mode = job.geometry;
-  if (mode == Geometry::automatic) {
-    if (has_depth) mode = masks_ok ? Geometry::both : Geometry::depth;
-    else if (masks_ok) mode = Geometry::hull;
+  plan.mode = job.geometry;
+  if (plan.mode == Geometry::automatic) {
+    if (has_depth) plan.mode = masks_ok ? Geometry::both : Geometry::depth;
+    else if (masks_ok) plan.mode = Geometry::hull;
     else return fail("no depth in the session and no silhouettes (the background is not a uniform backdrop, border spread " +
                      fmt::format("{:.1f}", worst_spread) + " levels): nothing to reconstruct from");
   }
-  const std::string_view mode_name = geometry_name(mode);
-  if ((mode == Geometry::hull || mode == Geometry::both) && !masks_ok)
+  const std::string_view mode_name = geometry_name(plan.mode);
+  if (plan.uses_hull() && !masks_ok)
     return fail(ErrorCode::invalid,
                 s.layout != Layout::kObjectCentre
                     ? fmt::format("geometry: {} needs an object-centre session (silhouettes of an object)", mode_name)
                     : fmt::format("geometry: {}: the images' border is not a uniform backdrop (spread {:.1f} levels)",
                                   mode_name, worst_spread));
-  if ((mode == Geometry::depth || mode == Geometry::both) && !has_depth)
+  if (plan.uses_depth() && !has_depth)
     return fail(ErrorCode::invalid, fmt::format("geometry: {}: the session has no depth", mode_name));
-  if (mode == Geometry::depth) rep.skipped["visual_hull_not_needed"] = 1;
-  if (mode == Geometry::hull) rep.skipped["depth_fusion_without_depth"] = 1;
+  if (plan.mode == Geometry::depth) rep.skipped["visual_hull_not_needed"] = 1;
+  if (plan.mode == Geometry::hull) rep.skipped["depth_fusion_without_depth"] = 1;
+  return plan;
+}
 
-  // Where the object is, and how far apart the cameras are.
+// Depth points in the world, every 4th pixel, in view order.
+std::vector<Eigen::Vector3f> depth_sample(const std::vector<View>& views, const DepthSensorModel& sensor, int threads) {
+  std::vector<std::vector<Eigen::Vector3f>> per_view(views.size());
+  parallel_for(int(views.size()), threads, [&](int i) {
+    const View& v = views[size_t(i)];
+    if (v.depth.empty()) return;
+    const Eigen::Isometry3d world_from_depth = v.world_from_camera * sensor.color_from_depth;
+    const Intrinsics& K = *sensor.intrinsics;
+    const double unit = sensor.unit_m;
+    const bool pinhole = !K.has_distortion();
+    for (int y = 0; y < v.depth.height; y += 4)
+      for (int x = 0; x < v.depth.width; x += 4)
+        if (const uint16_t d = v.depth.data[size_t(y) * v.depth.width + x]) {
+          // Through a pinhole, unproject's own arithmetic inline.
+          if (pinhole)
+            per_view[size_t(i)].push_back(
+                (world_from_depth * (Eigen::Vector3d((x - K.cx) / K.fx, (y - K.cy) / K.fy, 1.0) * (d * unit))).cast<float>());
+          else if (auto p = K.unproject({double(x), double(y)}, d * unit))
+            per_view[size_t(i)].push_back((world_from_depth * *p).cast<float>());
+        }
+  });
+  std::vector<Eigen::Vector3f> sample;
+  for (const auto& pv : per_view) sample.insert(sample.end(), pv.begin(), pv.end());
+  return sample;
+}
+
+Result<SceneExtent> measure_scene(const ReconstructJob& job, const Inputs& in, const std::vector<View>& views) {
   std::vector<Eigen::Isometry3d> cams;
   for (const auto& v : views) cams.push_back(v.world_from_camera);
-  std::vector<Eigen::Vector3f> sample;  // depth points in the world, every 4th pixel, in view order
-  {
-    std::vector<std::vector<Eigen::Vector3f>> per_view(views.size());
-    parallel_for(int(views.size()), job.threads, [&](int i) {
-      const View& v = views[size_t(i)];
-      if (v.depth.empty()) return;
-      const Eigen::Isometry3d world_from_depth = v.world_from_camera * color_from_depth;
-      const Intrinsics& K = *depth_K;
-      const bool pinhole = !K.has_distortion();
-      for (int y = 0; y < v.depth.height; y += 4)
-        for (int x = 0; x < v.depth.width; x += 4)
-          if (const uint16_t d = v.depth.data[size_t(y) * v.depth.width + x]) {
-            // Through a pinhole, unproject's own arithmetic inline.
-            if (pinhole)
-              per_view[size_t(i)].push_back(
-                  (world_from_depth * (Eigen::Vector3d((x - K.cx) / K.fx, (y - K.cy) / K.fy, 1.0) * (d * unit))).cast<float>());
-            else if (auto p = K.unproject({double(x), double(y)}, d * unit))
-              per_view[size_t(i)].push_back((world_from_depth * *p).cast<float>());
-          }
-    });
-    for (const auto& pv : per_view) sample.insert(sample.end(), pv.begin(), pv.end());
-  }
-  Eigen::Vector3d centre;
-  double view_distance;
-  std::optional<Eigen::AlignedBox3d> crop;
-  Eigen::AlignedBox3d box;
-  if (s.layout == Layout::kObjectCentre) {
-    centre = optical_axes_centre(cams);
+  const std::vector<Eigen::Vector3f> sample = depth_sample(views, in.sensor, job.threads);
+  SceneExtent e;
+  if (in.s.layout == Layout::kObjectCentre) {
+    e.centre = optical_axes_centre(cams);
     double nearest = std::numeric_limits<double>::infinity();
-    for (const auto& c : cams) nearest = std::min(nearest, (c.translation() - centre).norm());
+    for (const auto& c : cams) nearest = std::min(nearest, (c.translation() - e.centre).norm());
     const double half = 0.6 * nearest;  // the object cannot reach the cameras
-    box = Eigen::AlignedBox3d(centre - Eigen::Vector3d::Constant(half), centre + Eigen::Vector3d::Constant(half));
-    crop = box;
-    view_distance = camera_spacing(cams, centre).median_distance_m;
+    e.box = Eigen::AlignedBox3d(e.centre - Eigen::Vector3d::Constant(half), e.centre + Eigen::Vector3d::Constant(half));
+    e.crop = e.box;
+    e.view_distance = camera_spacing(cams, e.centre).median_distance_m;
   } else {
     if (sample.empty()) return fail("camera-centre session without depth: nothing to reconstruct");
     Eigen::Vector3d lo, hi;
@@ -253,8 +283,8 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
       std::sort(c.begin(), c.end());
       lo[a] = c[c.size() / 200], hi[a] = c[c.size() - 1 - c.size() / 200];
     }
-    box = Eigen::AlignedBox3d(lo, hi);
-    centre = box.center();
+    e.box = Eigen::AlignedBox3d(lo, hi);
+    e.centre = e.box.center();
     std::vector<double> dist;
     for (size_t i = 0; i < sample.size(); i += 7) {
       double best = std::numeric_limits<double>::infinity();
@@ -262,18 +292,18 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
       dist.push_back(best);
     }
     std::nth_element(dist.begin(), dist.begin() + dist.size() / 2, dist.end());
-    view_distance = dist[dist.size() / 2];
+    e.view_distance = dist[dist.size() / 2];
   }
-  const CameraSpacing spacing = camera_spacing(cams, centre);
-  const double delta_centre = std::min(spacing.max_gap_rad / 2, std::numbers::pi / 2);
-  const double focal = views.front().K.fx;
+  e.spacing = camera_spacing(cams, e.centre);
+  const double delta_centre = std::min(e.spacing.max_gap_rad / 2, std::numbers::pi / 2);
+  e.focal = views.front().K.fx;
   // The bound holds with alpha the angle at the texel: on the object's side
   // nearest the cameras (distance z_near) two cameras R from the centre are
   // further apart in angle, sin(alpha) = R sin(delta) / z_near, and the screen
   // is closer (bench reconstruct measured e up to 1.28x the centre's figure
   // on the bunny before this).
-  double near_distance = view_distance;
-  if (s.layout == Layout::kObjectCentre && !sample.empty()) {
+  e.near_distance = e.view_distance;
+  if (in.s.layout == Layout::kObjectCentre && !sample.empty()) {
     std::vector<double> nearest(cams.size());
     parallel_for(int(cams.size()), job.threads, [&](int k) {
       // Squared distances in the loop, one square root at the end: the same minimum.
@@ -283,229 +313,219 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
       nearest[size_t(k)] = std::sqrt(best);
     });
     std::nth_element(nearest.begin(), nearest.begin() + nearest.size() / 2, nearest.end());
-    near_distance = std::min(view_distance, nearest[nearest.size() / 2]);
+    e.near_distance = std::min(e.view_distance, nearest[nearest.size() / 2]);
   }
-  const double delta = std::asin(std::min(1.0, view_distance * std::sin(delta_centre) / near_distance));
-  const double pixel_m = view_distance / focal;  // an input pixel at the viewing distance
-  double w0;
-  if (job.voxel_m) {
-    w0 = *job.voxel_m;
-    rep.params["voxel_mode"] = std::string("given");
-  } else {
-    // Densely spaced cameras allow large facets by the bound alone; a facet is
-    // still kept within kMaxFacetPixels input pixels, beyond which it blurs
-    // detail the photos hold and its clipping window (w/2) stops telling
-    // surfaces apart.
-    constexpr double kMaxFacetPixels = 8;
-    double w_max = voxel_for_error(job.target_error_px, focal, near_distance, delta);
-    if (w_max > kMaxFacetPixels * pixel_m) {
-      w_max = kMaxFacetPixels * pixel_m;
-      rep.params["voxel_limited_by"] = std::string("8 input pixels (cameras closer than the bound needs)");
-    } else {
-      rep.params["voxel_limited_by"] = std::string("error bound");
-    }
-    w0 = job.per_region ? w_max / 2 : w_max;
-    rep.params["voxel_mode"] = std::string("auto");
-    rep.params["voxel_bound_m"] = w_max;
-    if (w0 < 2 * pixel_m) {
-      rep.warnings.push_back(fmt::format("the error bound allows {:.2f} mm facets, under two input pixels ({:.2f} mm): "
-                                         "using two pixels (cameras this close in angle need no finer facets)",
-                                         1e3 * w0, 2e3 * pixel_m));
-      w0 = 2 * pixel_m;
-    }
-    const double extent = box.sizes().maxCoeff();
-    if (w0 > extent / 4) w0 = extent / 4;
+  e.delta = std::asin(std::min(1.0, e.view_distance * std::sin(delta_centre) / e.near_distance));
+  e.pixel_m = e.view_distance / e.focal;  // an input pixel at the viewing distance
+  return e;
+}
+
+// The facet size (given, or from the error bound), with what decided it in
+// the report; refused when the volume would not fit.
+Result<VoxelChoice> choose_job_voxel(const ReconstructJob& job, const SceneExtent& e, Report& rep) {
+  VoxelRequest vr;
+  vr.given_m = job.voxel_m;
+  vr.target_error_px = job.target_error_px;
+  vr.per_region = job.per_region;
+  vr.focal_px = e.focal;
+  vr.near_distance_m = e.near_distance;
+  vr.delta_rad = e.delta;
+  vr.pixel_m = e.pixel_m;
+  vr.extent_m = e.box.sizes().maxCoeff();
+  const VoxelChoice voxel = choose_voxel(vr);
+  rep.params["voxel_mode"] = std::string(voxel.automatic ? "auto" : "given");
+  if (voxel.automatic) {
+    rep.params["voxel_limited_by"] =
+        std::string(voxel.limited_by_pixels ? "8 input pixels (cameras closer than the bound needs)" : "error bound");
+    rep.params["voxel_bound_m"] = voxel.bound_m;
   }
-  if (w0 < pixel_m)
-    rep.warnings.push_back(fmt::format("voxel {:.3f} mm is below one input pixel at the viewing distance ({:.3f} mm): "
-                                       "facets finer than the photos",
-                                       1e3 * w0, 1e3 * pixel_m));
-  const double w_largest = job.per_region ? 2 * w0 : w0;
+  rep.warnings.insert(rep.warnings.end(), voxel.warnings.begin(), voxel.warnings.end());
+  const double w0 = voxel.base_m;
   rep.params["voxel_m"] = w0;
-  rep.params["voxel_coarse_m"] = w_largest;
-  rep.params["geometry"] = std::string(mode_name);
-  rep.params["poses"] = poses->source;
+  rep.params["voxel_coarse_m"] = voxel.coarse_m;
   rep.params["target_error_px"] = job.target_error_px;
-  rep.params["camera_gap_deg"] = spacing.max_gap_rad * 180 / std::numbers::pi;
-  rep.params["view_distance_m"] = view_distance;
-  rep.params["near_distance_m"] = near_distance;
-  rep.params["texel_angle_deg"] = delta * 180 / std::numbers::pi;
+  rep.params["camera_gap_deg"] = e.spacing.max_gap_rad * 180 / std::numbers::pi;
+  rep.params["view_distance_m"] = e.view_distance;
+  rep.params["near_distance_m"] = e.near_distance;
+  rep.params["texel_angle_deg"] = e.delta * 180 / std::numbers::pi;
   rep.params["truncation_m"] = job.truncation_voxels * w0;
-  rep.errors["predicted_texel_error_px"] = focal * texel_error_bound(w_largest, delta) / near_distance;
+  rep.errors["predicted_texel_error_px"] = e.focal * texel_error_bound(voxel.coarse_m, e.delta) / e.near_distance;
   const size_t max_cells = size_t(4e8);
-  if (std::pow(box.sizes().maxCoeff() / w0, 3) > double(max_cells) * 64)
+  if (std::pow(e.box.sizes().maxCoeff() / w0, 3) > double(max_cells) * 64)
     return fail(fmt::format("voxel {:.3g} m is too small for a {:.3g} m scene (over 2.5e10 cells): choose a larger --voxel",
-                            w0, box.sizes().maxCoeff()));
+                            w0, e.box.sizes().maxCoeff()));
+  return voxel;
+}
 
-  // Fusion.
-  SparseVolume volume(w0, job.truncation_voxels * w0, crop);
+// Depth fused into the volume; the depth observations are kept for the hull.
+std::vector<DepthObservation> fuse_depth(const ReconstructJob& job, const Inputs& in, const std::vector<View>& views,
+                                         SparseVolume& volume, Report& rep) {
   std::vector<DepthObservation> depth_obs;
-  if (mode == Geometry::depth || mode == Geometry::both) {
-    Progress progress("fuse depth", views.size());
-    for (const auto& v : views) {
-      if (v.depth.empty()) {
-        rep.skipped["views_without_depth"] += 1;
-        progress.tick();
-        continue;
-      }
-      depth_obs.push_back({&v.depth, unit, *depth_K, v.world_from_camera * color_from_depth});
+  Progress progress("fuse depth", views.size());
+  for (const auto& v : views) {
+    if (v.depth.empty()) {
+      rep.skipped["views_without_depth"] += 1;
+      progress.tick();
+      continue;
     }
-    volume.integrate(depth_obs, job.threads, [&] { progress.tick(); });
-    progress.done();
-    const auto& fs_ = volume.fusion_stats();
-    rep.counts["depth_samples"] = double(fs_.depth_samples);
-    rep.counts["voxel_updates"] = double(fs_.voxel_updates);
-    if (fs_.samples_outside_crop) rep.skipped["depth_samples_outside_object_box"] = double(fs_.samples_outside_crop);
+    depth_obs.push_back({&v.depth, in.sensor.unit_m, *in.sensor.intrinsics, v.world_from_camera * in.sensor.color_from_depth});
   }
-  timer.lap("fusion");
-  if (mode == Geometry::hull || mode == Geometry::both) {
-    std::vector<SilhouetteObservation> sil;
-    for (size_t i = 0; i < views.size(); ++i) sil.push_back({&masks[i], views[i].K, views[i].world_from_camera});
-    const HullStats hs = volume.carve_hull(sil, mode == Geometry::both ? depth_obs : std::vector<DepthObservation>{}, box, job.threads);
-    rep.counts["hull_voxels"] = double(hs.hull_voxels);
-    rep.counts["hull_cells_tested"] = double(hs.cells_tested);
-    rep.counts["fuzzy_voxels"] = double(hs.fuzzy_voxels);
-    if (mode == Geometry::both) {
-      rep.skipped["hull_voxels_free_by_depth"] = double(hs.carved_by_depth);
-      rep.skipped["hull_voxels_inside_by_depth"] = double(hs.solid_by_depth);
-    }
+  volume.integrate(depth_obs, job.threads, [&] { progress.tick(); });
+  progress.done();
+  const auto& fs_ = volume.fusion_stats();
+  rep.counts["depth_samples"] = double(fs_.depth_samples);
+  rep.counts["voxel_updates"] = double(fs_.voxel_updates);
+  if (fs_.samples_outside_crop) rep.skipped["depth_samples_outside_object_box"] = double(fs_.samples_outside_crop);
+  return depth_obs;
+}
+
+void carve_hull(const ReconstructJob& job, const GeometryPlan& plan, const std::vector<View>& views,
+                const std::vector<DepthObservation>& depth_obs, const Eigen::AlignedBox3d& box, SparseVolume& volume,
+                Report& rep) {
+  std::vector<SilhouetteObservation> sil;
+  for (size_t i = 0; i < views.size(); ++i) sil.push_back({&plan.masks[i], views[i].K, views[i].world_from_camera});
+  const bool both = plan.mode == Geometry::both;
+  const HullStats hs = volume.carve_hull(sil, both ? depth_obs : std::vector<DepthObservation>{}, box, job.threads);
+  rep.counts["hull_voxels"] = double(hs.hull_voxels);
+  rep.counts["hull_cells_tested"] = double(hs.cells_tested);
+  rep.counts["fuzzy_voxels"] = double(hs.fuzzy_voxels);
+  if (both) {
+    rep.skipped["hull_voxels_free_by_depth"] = double(hs.carved_by_depth);
+    rep.skipped["hull_voxels_inside_by_depth"] = double(hs.solid_by_depth);
   }
-  timer.lap("hull");
+}
 
-  std::error_code ec;
-  fs::create_directories(job.out / "cameras", ec);
-  if (ec) return fail("cannot create '" + (job.out / "cameras").string() + "': " + ec.message());
-  // The surface octree and its finest crack-free patch mesh (the textured-mesh
-  // baseline), built from the volume alone in a task of its own alongside the
-  // evidence, the cameras' depth and the facets: its seconds overlap theirs.
-  struct OctreePart {
-    std::vector<OctreeRecord> records;
-    int max_level = 0;
-    std::map<std::string, double> counts;
-    bool patch_mesh = false;
-  };
-  std::future<Result<OctreePart>> octree_part = std::async(std::launch::async, [&]() -> Result<OctreePart> {
-    Stopwatch clock;
-    OctreePart part;
-    // A sign change between neighbouring samples is a surface crossing when
-    // their difference is at most what fusion can store across one: the
-    // clamp behind surfaces (1.5 w) plus a projective distance in front of up
-    // to 2 w (grazing rays overestimate). Larger jumps are the truncation
-    // band's edge. (With 2 w, the rig bunny's patch mesh had 7,560 boundary
-    // edges; with 3.5 w, 1,406.)
-    const SurfaceOctree tree = SurfaceOctree::build_from_crossings(volume.crossings(3.5), w0);
-    part.records = octree_records(tree);
-    part.max_level = tree.max_level();
-    part.counts["octree_nodes"] = double(tree.nodes().size());
-    part.counts["octree_leaves"] = double(tree.leaves());
-    part.counts["octree_levels"] = double(tree.max_level() + 1);
-    const Mesh patches = tree.patch_mesh();
-    part.counts["patch_triangles"] = double(patches.faces.size());
-    part.counts["patch_boundary_edges"] = double(boundary_edges(patches));
-    if (!patches.faces.empty()) {
-      if (auto st2 = write_ply_mesh(job.out / "patches.ply", patches); !st2) return std::unexpected(st2.error());
-      part.patch_mesh = true;
-    }
-    part.counts["seconds_octree"] = clock.seconds();
-    return part;
-  });
+Result<OctreePart> build_octree_part(const SparseVolume& volume, double w0, const fs::path& out) {
+  Stopwatch clock;
+  OctreePart part;
+  // A sign change between neighbouring samples is a surface crossing when
+  // their difference is at most what fusion can store across one: the
+  // clamp behind surfaces (1.5 w) plus a projective distance in front of up
+  // to 2 w (grazing rays overestimate). Larger jumps are the truncation
+  // band's edge. (With 2 w, the rig bunny's patch mesh had 7,560 boundary
+  // edges; with 3.5 w, 1,406.)
+  const SurfaceOctree tree = SurfaceOctree::build_from_crossings(volume.crossings(3.5), w0);
+  part.records = octree_records(tree);
+  part.max_level = tree.max_level();
+  part.counts["octree_nodes"] = double(tree.nodes().size());
+  part.counts["octree_leaves"] = double(tree.leaves());
+  part.counts["octree_levels"] = double(tree.max_level() + 1);
+  const Mesh patches = tree.patch_mesh();
+  part.counts["patch_triangles"] = double(patches.faces.size());
+  part.counts["patch_boundary_edges"] = double(boundary_edges(patches));
+  if (!patches.faces.empty()) {
+    if (auto st = write_ply_mesh(out / "patches.ply", patches); !st) return std::unexpected(st.error());
+    part.patch_mesh = true;
+  }
+  part.counts["seconds_octree"] = clock.seconds();
+  return part;
+}
 
-  // Evidence and the fused surface.
-  const auto evidence = volume.evidence(w0 / 4);
-  if (evidence.empty()) rep.warnings.push_back("no voxel holds surface evidence: the model has no facets");
-  rep.counts["evidence_voxels"] = double(evidence.size());
-  rep.counts["active_voxels"] = double(volume.active_voxels());
-  rep.skipped["voxels_without_evidence"] = double(volume.active_voxels()) - double(evidence.size());
-  rep.counts["volume_bytes"] = double(volume.memory_bytes());
-  const Mesh surface = volume.surface_mesh(evidence);
-  rep.counts["surface_triangles"] = double(surface.faces.size());
-  // Written in a task of its own while the cameras' depth is made.
-  std::future<Status> surface_written = std::async(std::launch::async, [&]() -> Status {
-    if (surface.faces.empty()) return {};
-    return write_ply_mesh(job.out / "surface.ply", surface);
-  });
-  timer.lap("evidence");
-
-  // Per-camera depth and textures: the fused surface rasterized into every
-  // camera (the exact ray test per pixel; see camera_depth.h).
+// Every camera's depth: the fused surface rasterized into it (the exact ray
+// test per pixel; see camera_depth.h), with the rasterizer's counts.
+class CameraDepths {
+ public:
   // The fused surface is wound as OpenVDB meshes it (normals inward): faces
   // turned away from a camera are left out.
-  const MeshRasterizer raster(surface, MeshRasterizer::Faces::kInwardWound);
-  // The facets' visibility test reads each camera's depth every `stride`
-  // pixels, the spacing on the evidence's far side within w/3 (see
-  // visibility_stride). Without textures only that grid is drawn.
-  std::vector<int> stride(views.size(), 1);
-  {
+  CameraDepths(const Mesh& surface, const std::vector<View>& views, const std::vector<EvidenceVoxel>& evidence, double w0,
+               bool textures, int threads, Report& rep)
+      : raster_(surface, MeshRasterizer::Faces::kInwardWound), stride_(views.size(), 1) {
+    // The facets' visibility test reads each camera's depth every `stride`
+    // pixels, the spacing on the evidence's far side within w/3 (see
+    // visibility_stride). Without textures only that grid is drawn.
     Eigen::AlignedBox3d box_e;
     for (const auto& e : evidence) box_e.extend(e.centre.cast<double>());
     for (size_t i = 0; i < views.size() && !box_e.isEmpty(); ++i) {
       const Eigen::Isometry3d camera_from_world = views[i].world_from_camera.inverse();
       double far = 0;
       for (int c = 0; c < 8; ++c) far = std::max(far, (camera_from_world * box_e.corner(Eigen::AlignedBox3d::CornerType(c))).z());
-      stride[i] = visibility_stride(w0, far, views[i].K);
+      stride_[i] = visibility_stride(w0, far, views[i].K);
     }
-    rep.counts["visibility_stride_max"] = double(*std::max_element(stride.begin(), stride.end()));
+    rep.counts["visibility_stride_max"] = double(*std::max_element(stride_.begin(), stride_.end()));
+    raster_.prepare(textures ? views.front().K : visibility_grid(views.front().K, stride_.front()), threads);
   }
-  raster.prepare(job.textures ? views.front().K : visibility_grid(views.front().K, stride.front()), job.threads);
-  std::atomic<size_t> drawn{0}, culled{0}, back{0}, back_runs{0}, tested{0};
-  auto camera_depth = [&](const Intrinsics& K, const Eigen::Isometry3d& world_from_camera) {
+  int stride(size_t view) const { return stride_[view]; }
+  ImageF operator()(const Intrinsics& K, const Eigen::Isometry3d& world_from_camera) const {
     MeshRasterizer::Stats rs;
-    ImageF d = raster.distance_image(K, world_from_camera, &rs);
-    drawn += rs.triangles_drawn, culled += rs.triangles_culled, back += rs.back_faces, tested += rs.pixels_tested;
-    back_runs += rs.back_faces_in_runs;
+    ImageF d = raster_.distance_image(K, world_from_camera, &rs);
+    drawn_ += rs.triangles_drawn, culled_ += rs.triangles_culled, back_ += rs.back_faces, tested_ += rs.pixels_tested;
+    back_runs_ += rs.back_faces_in_runs;
     return d;
-  };
-  Model model;
-  model.voxel_size_m = w0;
-  std::vector<ImageF> distance(views.size());
+  }
+  void report(Report& rep) const {
+    rep.counts["camera_depth_triangles_drawn"] = double(drawn_);
+    rep.counts["camera_depth_pixels_tested"] = double(tested_);
+    rep.skipped["camera_depth_triangles_outside_view"] = double(culled_);
+    rep.skipped["camera_depth_back_faces"] = double(back_);
+    rep.skipped["camera_depth_back_faces_in_whole_runs"] = double(back_runs_);
+    const MeshRasterizer::RayTiles tiles = raster_.ray_tiles();
+    rep.counts["camera_depth_ray_tiles"] = double(tiles.made);
+    rep.skipped["camera_depth_ray_tiles_not_needed"] = double(tiles.total - tiles.made);
+  }
+
+ private:
+  MeshRasterizer raster_;
+  std::vector<int> stride_;
+  mutable std::atomic<size_t> drawn_{0}, culled_{0}, back_{0}, back_runs_{0}, tested_{0};
+};
+
+std::vector<ModelCamera> model_cameras(const std::vector<View>& views, bool textures) {
+  std::vector<ModelCamera> cameras;
   for (const View& v : views) {
     ModelCamera mc;
     mc.intrinsics = v.K;
     mc.world_from_camera = v.world_from_camera;
     mc.session_frame = v.frame;
-    if (job.textures) mc.texture = "cameras/" + frame_file_name(v.frame, "exr");
-    model.cameras.push_back(mc);
+    if (textures) mc.texture = "cameras/" + frame_file_name(v.frame, "exr");
+    cameras.push_back(mc);
   }
-  if (job.textures) {
-    // Every camera's depth goes into its texture; without textures each one
-    // is made when the facets' visibility test comes to it.
-    Progress progress("camera depth", views.size());
-    std::mutex progress_mutex;
-    parallel_for(int(views.size()), worker_count(job.threads), [&](int i) {
-      distance[size_t(i)] = camera_depth(views[size_t(i)].K, views[size_t(i)].world_from_camera);
-      const std::lock_guard<std::mutex> lock(progress_mutex);
-      progress.tick();
-    });
-    progress.done();
-  }
-  timer.lap("camera_depth");
-  if (job.textures) {
-    // Colour + alpha (geometry hit) + distance, one OpenEXR per camera, written in parallel.
-    std::vector<Status> written(views.size());
-    parallel_for(int(views.size()), worker_count(job.threads), [&](int i) {
-      const View& v = views[size_t(i)];
-      RgbazImage t{ImageU8(v.K.width, v.K.height, 4), distance[size_t(i)]};
-      const size_t ch = size_t(v.color.channels);
-      for (size_t p = 0; p < t.rgba.pixels(); ++p) {
-        for (size_t k = 0; k < 3; ++k) t.rgba.data[p * 4 + k] = v.color.data[p * ch + std::min(k, ch - 1)];
-        t.rgba.data[p * 4 + 3] = t.distance.data[p] > 0 ? 255 : 0;
-      }
-      written[size_t(i)] = write_rgbaz(job.out / model.cameras[size_t(i)].texture, t);
-    });
-    for (const auto& st : written)
-      if (!st) return std::unexpected(st.error());
-  } else {
-    rep.skipped["camera_textures_not_written"] = double(views.size());
-  }
-  timer.lap("textures");
+  return cameras;
+}
 
-  // Facets.
+// Every camera's depth image, for its texture.
+std::vector<ImageF> all_camera_depths(const std::vector<View>& views, const CameraDepths& depth, int threads) {
+  std::vector<ImageF> distance(views.size());
+  Progress progress("camera depth", views.size());
+  std::mutex progress_mutex;
+  parallel_for(int(views.size()), worker_count(threads), [&](int i) {
+    distance[size_t(i)] = depth(views[size_t(i)].K, views[size_t(i)].world_from_camera);
+    const std::lock_guard<std::mutex> lock(progress_mutex);
+    progress.tick();
+  });
+  progress.done();
+  return distance;
+}
+
+// Colour + alpha (geometry hit) + distance, one OpenEXR per camera, written in parallel.
+Status write_textures(const ReconstructJob& job, const std::vector<View>& views, const std::vector<ImageF>& distance,
+                      const std::vector<ModelCamera>& cameras) {
+  std::vector<Status> written(views.size());
+  parallel_for(int(views.size()), worker_count(job.threads), [&](int i) {
+    const View& v = views[size_t(i)];
+    RgbazImage t{ImageU8(v.K.width, v.K.height, 4), distance[size_t(i)]};
+    const size_t ch = size_t(v.color.channels);
+    for (size_t p = 0; p < t.rgba.pixels(); ++p) {
+      for (size_t k = 0; k < 3; ++k) t.rgba.data[p * 4 + k] = v.color.data[p * ch + std::min(k, ch - 1)];
+      t.rgba.data[p * 4 + 3] = t.distance.data[p] > 0 ? 255 : 0;
+    }
+    written[size_t(i)] = write_rgbaz(job.out / cameras[size_t(i)].texture, t);
+  });
+  for (const auto& st : written)
+    if (!st) return std::unexpected(st.error());
+  return {};
+}
+
+// The facets and their cameras; without textures each camera's depth is made
+// on the visibility grid when the facets' test comes to it.
+void build_model_facets(const ReconstructJob& job, const std::vector<View>& views, const std::vector<EvidenceVoxel>& evidence,
+                        const std::vector<ImageF>& distance, const CameraDepths& depth, double w0, Model& model,
+                        Report& rep) {
   std::vector<FacetCamera> fc;
   for (size_t i = 0; i < views.size(); ++i) {
-    FacetCamera c{views[i].K, views[i].world_from_camera, job.textures ? &distance[i] : nullptr, {}, stride[i]};
+    FacetCamera c{views[i].K, views[i].world_from_camera, job.textures ? &distance[i] : nullptr, {}, depth.stride(i)};
     if (!job.textures) {
-      const Intrinsics G = visibility_grid(views[i].K, stride[i]);
-      c.distance_at = [&, i, G] { return camera_depth(G, views[i].world_from_camera); };
+      const Intrinsics G = visibility_grid(views[i].K, depth.stride(i));
+      c.distance_at = [&depth, &views, i, G] { return depth(G, views[i].world_from_camera); };
       rep.skipped["camera_depth_pixels_off_the_visibility_grid"] +=
           double(views[i].K.width) * views[i].K.height - double(G.width) * G.height;
     }
@@ -522,72 +542,156 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   rep.counts["facets_fuzzy"] = double(st.fuzzy);
   rep.counts["facet_camera_links"] = double(st.camera_links);
   rep.counts["cameras"] = double(views.size());
-  rep.counts["camera_depth_triangles_drawn"] = double(drawn);
-  rep.counts["camera_depth_pixels_tested"] = double(tested);
   rep.skipped["facets_seen_by_no_camera"] = double(st.unseen);
   rep.skipped["facet_camera_pairs_occluded"] = double(st.occluded);
   rep.skipped["facet_camera_pairs_outside_image"] = double(st.outside_image);
-  rep.skipped["camera_depth_triangles_outside_view"] = double(culled);
-  rep.skipped["camera_depth_back_faces"] = double(back);
-  rep.skipped["camera_depth_back_faces_in_whole_runs"] = double(back_runs);
-  const MeshRasterizer::RayTiles tiles = raster.ray_tiles();
-  rep.counts["camera_depth_ray_tiles"] = double(tiles.made);
-  rep.skipped["camera_depth_ray_tiles_not_needed"] = double(tiles.total - tiles.made);
-  timer.lap("facets");
+  depth.report(rep);
+}
 
+Eigen::AlignedBox3d facet_bounds(const std::vector<FacetRecord>& facets, const Eigen::Vector3d& centre) {
   Eigen::AlignedBox3d bounds;
-  for (const auto& f : model.facets) {
+  for (const auto& f : facets) {
     const Eigen::Vector3d c(f.center[0], f.center[1], f.center[2]);
     bounds.extend(c - Eigen::Vector3d::Constant(f.size));
     bounds.extend(c + Eigen::Vector3d::Constant(f.size));
   }
   if (bounds.isEmpty()) bounds = Eigen::AlignedBox3d(centre, centre);
-  model.bounds = bounds;
-  {
-    Result<OctreePart> part = octree_part.get();
-    if (!part) return std::unexpected(part.error());
-    model.octree = std::move(part->records);
-    model.octree_max_level = part->max_level;
-    for (const auto& [k, v] : part->counts) rep.counts[k] = v;
-    if (part->patch_mesh) model.patch_mesh = "patches.ply";
+  return bounds;
+}
+
+// The synthetic rig knows the truth: the model's error against it.
+Status check_against_truth(const ReconstructJob& job, const Session& s, const Model& model, double w0, Report& rep) {
+  const fs::path truth_mesh = s.root / "ground_truth" / "geometry.ply";
+  auto mesh = read_ply_mesh(truth_mesh);
+  if (!mesh) return std::unexpected(mesh.error());
+  std::vector<FacetRecord> solid;
+  for (const auto& f : model.facets)
+    if (f.size <= w0 * 1.01) solid.push_back(f);
+  const SurfaceDistance distance_to_truth(*mesh, w0 / 5);
+  const SurfaceError all = distance_to_truth.error(model.facets);
+  const SurfaceError fine = distance_to_truth.error(solid);
+  rep.errors["facets_within_w_fraction"] = all.within_size;
+  rep.errors["facet_distance_median_m"] = all.median_m;
+  rep.errors["facet_distance_p99_m"] = all.p99_m;
+  rep.errors["fine_facets_within_w_fraction"] = fine.within_size;
+  if (job.textures) {
+    auto de = camera_depth_error(model, job.out, s.root);
+    if (!de) return std::unexpected(de.error());
+    rep.errors["camera_depth_median_m"] = de->median_m;
+    rep.errors["camera_depth_p90_m"] = de->p90_m;
+    rep.errors["camera_depth_missing_fraction"] = de->missing;
   }
+  if (fs::exists(s.root / "ground_truth" / "strands.ply")) {
+    auto sc = strand_coverage(model, s.root);
+    if (!sc) return std::unexpected(sc.error());
+    rep.errors["strand_pixels_covered_fraction"] = sc->covered;
+    rep.errors["facet_pixels_on_background_fraction"] = sc->background;
+  }
+  return {};
+}
+
+}  // namespace
+
+Status ReconstructJob::validate() const {
+  if (!(target_error_px > 0)) return fail(ErrorCode::invalid, "target_error_px: must be > 0 pixels");
+  if (!(truncation_voxels >= 1)) return fail(ErrorCode::invalid, "truncation_voxels: must be at least 1 voxel");
+  if (voxel_m && !(*voxel_m > 0 && std::isfinite(*voxel_m)))
+    return fail(ErrorCode::invalid, "voxel_m: must be 'auto' or a positive number of metres");
+  if (threads < 0) return fail(ErrorCode::invalid, "threads: must be >= 0 (0 = all cores)");
+  return {};
+}
+
+// The job's steps, each timed into the report (seconds_STEP, cpu_STEP): load,
+// geometry and voxel size, fusion, hull, evidence and the fused surface (the
+// octree in a task of its own alongside), camera depth, textures, facets,
+// write; then the check against the synthetic rig's truth where there is one.
+Result<Report> run_reconstruct_job(const ReconstructJob& job) {
+  Stopwatch total;
+  Report rep;
+  rep.stage = "reconstruct";
+  Timer timer{rep, {}};
+  if (auto st = job.validate(); !st) return std::unexpected(st.error());
+  auto in = load_inputs(job);
+  if (!in) return std::unexpected(in.error());
+  auto views = load_views(job, *in, rep);
+  if (!views) return std::unexpected(views.error());
+  timer.lap("load");
+  auto plan = plan_geometry(job, in->s, *views, rep);
+  if (!plan) return std::unexpected(plan.error());
+  auto extent = measure_scene(job, *in, *views);
+  if (!extent) return std::unexpected(extent.error());
+  auto voxel = choose_job_voxel(job, *extent, rep);
+  if (!voxel) return std::unexpected(voxel.error());
+  const double w0 = voxel->base_m;
+  rep.params["geometry"] = std::string(geometry_name(plan->mode));
+  rep.params["poses"] = in->poses.source;
+
+  SparseVolume volume(w0, job.truncation_voxels * w0, extent->crop);
+  std::vector<DepthObservation> depth_obs;
+  if (plan->uses_depth()) depth_obs = fuse_depth(job, *in, *views, volume, rep);
+  timer.lap("fusion");
+  if (plan->uses_hull()) carve_hull(job, *plan, *views, depth_obs, extent->box, volume, rep);
+  timer.lap("hull");
+
+  std::error_code ec;
+  fs::create_directories(job.out / "cameras", ec);
+  if (ec) return fail("cannot create '" + (job.out / "cameras").string() + "': " + ec.message());
+  // The octree is built from the volume alone alongside the evidence, the
+  // cameras' depth and the facets: its seconds overlap theirs.
+  std::future<Result<OctreePart>> octree_part =
+      std::async(std::launch::async, [&] { return build_octree_part(volume, w0, job.out); });
+
+  const auto evidence = volume.evidence(w0 / 4);
+  if (evidence.empty()) rep.warnings.push_back("no voxel holds surface evidence: the model has no facets");
+  rep.counts["evidence_voxels"] = double(evidence.size());
+  rep.counts["active_voxels"] = double(volume.active_voxels());
+  rep.skipped["voxels_without_evidence"] = double(volume.active_voxels()) - double(evidence.size());
+  rep.counts["volume_bytes"] = double(volume.memory_bytes());
+  const Mesh surface = volume.surface_mesh(evidence);
+  rep.counts["surface_triangles"] = double(surface.faces.size());
+  // Written in a task of its own while the cameras' depth is made.
+  std::future<Status> surface_written = std::async(std::launch::async, [&]() -> Status {
+    if (surface.faces.empty()) return {};
+    return write_ply_mesh(job.out / "surface.ply", surface);
+  });
+  timer.lap("evidence");
+
+  const CameraDepths depth(surface, *views, evidence, w0, job.textures, job.threads, rep);
+  Model model;
+  model.voxel_size_m = w0;
+  model.cameras = model_cameras(*views, job.textures);
+  // Every camera's depth goes into its texture; without textures each one is
+  // made when the facets' visibility test comes to it.
+  std::vector<ImageF> distance(views->size());
+  if (job.textures) distance = all_camera_depths(*views, depth, job.threads);
+  timer.lap("camera_depth");
+  if (job.textures) {
+    if (auto st = write_textures(job, *views, distance, model.cameras); !st) return std::unexpected(st.error());
+  } else {
+    rep.skipped["camera_textures_not_written"] = double(views->size());
+  }
+  timer.lap("textures");
+  build_model_facets(job, *views, evidence, distance, depth, w0, model, rep);
+  timer.lap("facets");
+
+  model.bounds = facet_bounds(model.facets, extent->centre);
+  Result<OctreePart> part = octree_part.get();
+  if (!part) return std::unexpected(part.error());
+  model.octree = std::move(part->records);
+  model.octree_max_level = part->max_level;
+  for (const auto& [k, v] : part->counts) rep.counts[k] = v;
+  if (part->patch_mesh) model.patch_mesh = "patches.ply";
   timer.lap("octree_wait");
-  if (auto st2 = surface_written.get(); !st2) return std::unexpected(st2.error());
+  if (auto st = surface_written.get(); !st) return std::unexpected(st.error());
   if (!surface.faces.empty()) model.surface_mesh = "surface.ply";
-  if (auto st2 = save_model(job.out, model); !st2) return std::unexpected(st2.error());
+  if (auto st = save_model(job.out, model); !st) return std::unexpected(st.error());
   timer.lap("write");
   rep.counts["model_bytes"] = double(model.facets.size() * sizeof(FacetRecord) + model.facet_cameras.size() * 4);
   rep.seconds = total.seconds();
 
-  // The synthetic rig knows the truth: report the model's error against it
-  // (not counted in the build seconds).
-  const fs::path truth_mesh = s.root / "ground_truth" / "geometry.ply";
-  if (fs::exists(truth_mesh)) {
-    auto mesh = read_ply_mesh(truth_mesh);
-    if (!mesh) return std::unexpected(mesh.error());
-    std::vector<FacetRecord> solid;
-    for (const auto& f : model.facets)
-      if (f.size <= w0 * 1.01) solid.push_back(f);
-    const SurfaceDistance distance_to_truth(*mesh, w0 / 5);
-    const SurfaceError all = distance_to_truth.error(model.facets);
-    const SurfaceError fine = distance_to_truth.error(solid);
-    rep.errors["facets_within_w_fraction"] = all.within_size;
-    rep.errors["facet_distance_median_m"] = all.median_m;
-    rep.errors["facet_distance_p99_m"] = all.p99_m;
-    rep.errors["fine_facets_within_w_fraction"] = fine.within_size;
-    if (job.textures) {
-      auto de = camera_depth_error(model, job.out, s.root);
-      if (!de) return std::unexpected(de.error());
-      rep.errors["camera_depth_median_m"] = de->median_m;
-      rep.errors["camera_depth_p90_m"] = de->p90_m;
-      rep.errors["camera_depth_missing_fraction"] = de->missing;
-    }
-    if (fs::exists(s.root / "ground_truth" / "strands.ply")) {
-      auto sc = strand_coverage(model, s.root);
-      if (!sc) return std::unexpected(sc.error());
-      rep.errors["strand_pixels_covered_fraction"] = sc->covered;
-      rep.errors["facet_pixels_on_background_fraction"] = sc->background;
-    }
+  // Not counted in the build seconds.
+  if (fs::exists(in->s.root / "ground_truth" / "geometry.ply")) {
+    if (auto st = check_against_truth(job, in->s, model, w0, rep); !st) return std::unexpected(st.error());
     timer.lap("truth_check");
   }
   return rep;
