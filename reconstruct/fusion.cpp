@@ -204,141 +204,133 @@ double SparseVolume::voxel() const { return impl_->voxel; }
 double SparseVolume::truncation() const { return impl_->tau; }
 const FusionStats& SparseVolume::fusion_stats() const { return impl_->stats; }
 
-void SparseVolume::integrate(const DepthObservation& v, int threads) { integrate(std::vector<DepthObservation>{v}, threads); }
+namespace {
 
-void SparseVolume::integrate(const std::vector<DepthObservation>& views, int threads, const std::function<void()>& on_view) {
-  Impl& m = *impl_;
-  const int band = int(std::ceil(m.tau / m.voxel));
-  constexpr int kLeaf = openvdb::MaskTree::LeafNodeType::DIM;  // 8
-  // 1. Per view, the leaf nodes (8^3 voxels) within the truncation band of a
-  //    measured point, every voxel in them active (as block-based TSDFs do:
-  //    cheaper than dilating voxel by voxel). Every other pixel is enough to
-  //    find them. Views in parallel.
-  struct Touched {
-    std::vector<Coord> leaves;
-    size_t used = 0, outside = 0;
-  };
-  std::vector<Touched> touched(views.size());
-  // Where the crop box bounds the measured points (every point used lies in
-  // it), the leaves a view touches are bits of a grid over the box's leaves
-  // (16 KB for a 0.6 m box at 1.5 mm voxels): setting a bit costs less than
-  // touching a leaf of an OpenVDB mask tree, whose top node alone is 256 KB
-  // to clear for every view. Elsewhere, or for a grid over 2^24 leaves, the
-  // mask tree.
-  Coord grid_lo;
-  std::array<size_t, 3> grid_n{};
-  bool grid = false;
+constexpr int kLeaf = openvdb::MaskTree::LeafNodeType::DIM;  // 8
+
+// Where the crop box bounds the measured points (every point used lies in
+// it), the leaves a view touches are bits of a grid over the box's leaves
+// (16 KB for a 0.6 m box at 1.5 mm voxels): setting a bit costs less than
+// touching a leaf of an OpenVDB mask tree, whose top node alone is 256 KB
+// to clear for every view. Elsewhere, or for a grid over 2^24 leaves, the
+// mask tree.
+struct LeafGrid {
+  bool used = false;
+  Coord lo;
+  std::array<size_t, 3> n{};
+};
+
+LeafGrid leaf_grid(const SparseVolume::Impl& m, int band) {
+  LeafGrid g;
   if (m.crop && (m.crop->min().cwiseAbs().maxCoeff() / m.voxel) < double(1 << 28) &&
       (m.crop->max().cwiseAbs().maxCoeff() / m.voxel) < double(1 << 28)) {
     const Coord a = coord_of(m.crop->min(), m.voxel), b = coord_of(m.crop->max(), m.voxel);
     double cells = 1;
     for (int k = 0; k < 3; ++k) {
-      grid_lo[k] = (a[k] - band) & ~(kLeaf - 1);
-      grid_n[size_t(k)] = size_t((((b[k] + band) & ~(kLeaf - 1)) - grid_lo[k]) / kLeaf + 1);
-      cells *= double(grid_n[size_t(k)]);
+      g.lo[k] = (a[k] - band) & ~(kLeaf - 1);
+      g.n[size_t(k)] = size_t((((b[k] + band) & ~(kLeaf - 1)) - g.lo[k]) / kLeaf + 1);
+      cells *= double(g.n[size_t(k)]);
     }
-    grid = cells <= double(1 << 24);
+    g.used = cells <= double(1 << 24);
   }
-  in_arena(threads, [&] {
-    tbb::parallel_for(size_t(0), views.size(), [&](size_t vi) {
-      const DepthObservation& v = views[vi];
-      if (!v.depth || v.depth->empty()) return;
-      const ImageU16& depth = *v.depth;
-      Touched& t = touched[vi];
-      std::optional<openvdb::MaskTree> mask;
-      std::optional<openvdb::tree::ValueAccessor<openvdb::MaskTree>> acc;
-      std::vector<uint64_t> bits;
-      if (grid) {
-        bits.assign((grid_n[0] * grid_n[1] * grid_n[2] + 63) / 64, 0);
-      } else {
-        mask.emplace(false);
-        acc.emplace(*mask);
-      }
-      auto touch = [&](int lx, int ly, int lz) {
-        if (!grid) {
-          acc->touchLeaf(Coord(lx, ly, lz));
-          return;
-        }
-        const size_t i = (size_t((lx - grid_lo.x()) / kLeaf) * grid_n[1] + size_t((ly - grid_lo.y()) / kLeaf)) * grid_n[2] +
-                         size_t((lz - grid_lo.z()) / kLeaf);
-        bits[i >> 6] |= uint64_t(1) << (i & 63);
-      };
-      Coord last_lo(std::numeric_limits<int>::max()), last_hi = last_lo;
-      const Intrinsics& K = v.intrinsics;
-      const bool pinhole = !K.has_distortion();
-      // Through a pinhole, unproject's own arithmetic inline, its per-column
-      // factors made once; the pose's product written out in Eigen's order.
-      std::vector<double> column(size_t(std::max(depth.width, 0)));
-      for (int x = 0; x < depth.width; x += 2) column[size_t(x)] = (x - K.cx) / K.fx;
-      const Eigen::Matrix3d R = v.world_from_camera.linear();
-      const Eigen::Vector3d T = v.world_from_camera.translation();
-      for (int y = 0; y < depth.height; y += 2) {
-        const double row = (y - K.cy) / K.fy;
-        for (int x = 0; x < depth.width; x += 2) {
-          const uint16_t d = depth.data[size_t(y) * depth.width + x];
-          if (d == 0) continue;
-          Eigen::Vector3d pc;
-          if (pinhole) {
-            const double z = d * v.unit_m;
-            pc = Eigen::Vector3d(column[size_t(x)] * z, row * z, 1.0 * z);
-          } else {
-            auto u = K.unproject({double(x), double(y)}, d * v.unit_m);
-            if (!u) continue;
-            pc = *u;
-          }
-          const Eigen::Vector3d pw(R(0, 0) * pc.x() + R(0, 1) * pc.y() + R(0, 2) * pc.z() + T.x(),
-                                   R(1, 0) * pc.x() + R(1, 1) * pc.y() + R(1, 2) * pc.z() + T.y(),
-                                   R(2, 0) * pc.x() + R(2, 1) * pc.y() + R(2, 2) * pc.z() + T.z());
-          if (!m.in_crop(pw)) {
-            ++t.outside;
-            continue;
-          }
-          ++t.used;
-          const Coord c = coord_of(pw, m.voxel);
-          Coord lo, hi;
-          for (int a = 0; a < 3; ++a) lo[a] = (c[a] - band) & ~(kLeaf - 1), hi[a] = (c[a] + band) & ~(kLeaf - 1);
-          if (lo == last_lo && hi == last_hi) continue;  // neighbouring pixels: the same leaves
-          last_lo = lo, last_hi = hi;
-          for (int lx = lo.x(); lx <= hi.x(); lx += kLeaf)
-            for (int ly = lo.y(); ly <= hi.y(); ly += kLeaf)
-              for (int lz = lo.z(); lz <= hi.z(); lz += kLeaf) touch(lx, ly, lz);
-        }
-      }
-      if (grid) {
-        for (size_t w = 0; w < bits.size(); ++w)
-          for (uint64_t b = bits[w]; b; b &= b - 1) {
-            size_t i = w * 64 + size_t(std::countr_zero(b));
-            const int z = int(i % grid_n[2]);
-            i /= grid_n[2];
-            const int y = int(i % grid_n[1]), x = int(i / grid_n[1]);
-            t.leaves.push_back(grid_lo.offsetBy(x * kLeaf, y * kLeaf, z * kLeaf));
-          }
-      } else {
-        for (auto leaf = mask->cbeginLeaf(); leaf; ++leaf) t.leaves.push_back(leaf->origin());
-      }
-    });
-  });
+  return g;
+}
 
-  // 2. Each touched leaf with the views that touched it, in view order; the
-  //    leaves joined into the volume's topology.
-  std::vector<std::pair<Coord, uint32_t>> pairs;
-  for (size_t vi = 0; vi < views.size(); ++vi) {
-    ++m.stats.views;
-    const Touched& t = touched[vi];
-    m.stats.samples_outside_crop += t.outside;
-    m.stats.depth_samples += t.used;
-    if (t.used == 0) ++m.stats.views_without_depth;
-    for (const Coord& c : t.leaves) pairs.emplace_back(c, uint32_t(vi));
+// The leaf nodes a view's measured points reach within the truncation band.
+struct Touched {
+  std::vector<Coord> leaves;
+  size_t used = 0, outside = 0;
+};
+
+Touched touched_leaves(const SparseVolume::Impl& m, const DepthObservation& v, int band, const LeafGrid& g) {
+  Touched t;
+  const ImageU16& depth = *v.depth;
+  std::optional<openvdb::MaskTree> mask;
+  std::optional<openvdb::tree::ValueAccessor<openvdb::MaskTree>> acc;
+  std::vector<uint64_t> bits;
+  if (g.used) {
+    bits.assign((g.n[0] * g.n[1] * g.n[2] + 63) / 64, 0);
+  } else {
+    mask.emplace(false);
+    acc.emplace(*mask);
   }
-  if (pairs.empty()) {
-    if (on_view)
-      for (size_t vi = 0; vi < views.size(); ++vi) on_view();
-    return;
+  auto touch = [&](int lx, int ly, int lz) {
+    if (!g.used) {
+      acc->touchLeaf(Coord(lx, ly, lz));
+      return;
+    }
+    const size_t i = (size_t((lx - g.lo.x()) / kLeaf) * g.n[1] + size_t((ly - g.lo.y()) / kLeaf)) * g.n[2] +
+                     size_t((lz - g.lo.z()) / kLeaf);
+    bits[i >> 6] |= uint64_t(1) << (i & 63);
+  };
+  Coord last_lo(std::numeric_limits<int>::max()), last_hi = last_lo;
+  const Intrinsics& K = v.intrinsics;
+  const bool pinhole = !K.has_distortion();
+  // Through a pinhole, unproject's own arithmetic inline, its per-column
+  // factors made once; the pose's product written out in Eigen's order.
+  std::vector<double> column(size_t(std::max(depth.width, 0)));
+  for (int x = 0; x < depth.width; x += 2) column[size_t(x)] = (x - K.cx) / K.fx;
+  const Eigen::Matrix3d R = v.world_from_camera.linear();
+  const Eigen::Vector3d T = v.world_from_camera.translation();
+  for (int y = 0; y < depth.height; y += 2) {
+    const double row = (y - K.cy) / K.fy;
+    for (int x = 0; x < depth.width; x += 2) {
+      const uint16_t d = depth.data[size_t(y) * depth.width + x];
+      if (d == 0) continue;
+      Eigen::Vector3d pc;
+      if (pinhole) {
+        const double z = d * v.unit_m;
+        pc = Eigen::Vector3d(column[size_t(x)] * z, row * z, 1.0 * z);
+      } else {
+        auto u = K.unproject({double(x), double(y)}, d * v.unit_m);
+        if (!u) continue;
+        pc = *u;
+      }
+      const Eigen::Vector3d pw(R(0, 0) * pc.x() + R(0, 1) * pc.y() + R(0, 2) * pc.z() + T.x(),
+                               R(1, 0) * pc.x() + R(1, 1) * pc.y() + R(1, 2) * pc.z() + T.y(),
+                               R(2, 0) * pc.x() + R(2, 1) * pc.y() + R(2, 2) * pc.z() + T.z());
+      if (!m.in_crop(pw)) {
+        ++t.outside;
+        continue;
+      }
+      ++t.used;
+      const Coord c = coord_of(pw, m.voxel);
+      Coord lo, hi;
+      for (int a = 0; a < 3; ++a) lo[a] = (c[a] - band) & ~(kLeaf - 1), hi[a] = (c[a] + band) & ~(kLeaf - 1);
+      if (lo == last_lo && hi == last_hi) continue;  // neighbouring pixels: the same leaves
+      last_lo = lo, last_hi = hi;
+      for (int lx = lo.x(); lx <= hi.x(); lx += kLeaf)
+        for (int ly = lo.y(); ly <= hi.y(); ly += kLeaf)
+          for (int lz = lo.z(); lz <= hi.z(); lz += kLeaf) touch(lx, ly, lz);
+    }
   }
-  // Leaves along a Morton curve: consecutive leaves are neighbours in space,
-  // so they project near each other in every view and the depth pixels they
-  // read stay in cache. (Each leaf's updates are its own: the order of leaves
-  // changes no value.)
+  if (g.used) {
+    for (size_t w = 0; w < bits.size(); ++w)
+      for (uint64_t b = bits[w]; b; b &= b - 1) {
+        size_t i = w * 64 + size_t(std::countr_zero(b));
+        const int z = int(i % g.n[2]);
+        i /= g.n[2];
+        const int y = int(i % g.n[1]), x = int(i / g.n[1]);
+        t.leaves.push_back(g.lo.offsetBy(x * kLeaf, y * kLeaf, z * kLeaf));
+      }
+  } else {
+    for (auto leaf = mask->cbeginLeaf(); leaf; ++leaf) t.leaves.push_back(leaf->origin());
+  }
+  return t;
+}
+
+// Touched leaves with the views that touched them, sorted so that each
+// leaf's views are one run, in view order.
+struct LeafRuns {
+  std::vector<std::pair<Coord, uint32_t>> pairs;  // (leaf, view)
+  std::vector<size_t> starts;                     // each leaf's run in `pairs`, and pairs.size()
+};
+
+// Leaves along a Morton curve: consecutive leaves are neighbours in space, so
+// they project near each other in every view and the depth pixels they read
+// stay in cache. (Each leaf's updates are its own: the order of leaves
+// changes no value.)
+LeafRuns morton_runs(std::vector<std::pair<Coord, uint32_t>> pairs) {
   auto morton = [](const Coord& c) {
     auto spread = [](int v) {  // 21 bits (leaf units, offset) to every third of 63
       uint64_t x = uint64_t(uint32_t(v / kLeaf + (1 << 20))) & 0x1fffff;
@@ -351,161 +343,232 @@ void SparseVolume::integrate(const std::vector<DepthObservation>& views, int thr
   // Beyond 2^20 leaves from the origin two leaves may share a key: then by
   // coordinate. A leaf's views stay in view order (a view touches a leaf
   // once). Keys made once per pair, not per comparison.
-  {
-    struct Keyed {
-      uint64_t key;
-      Coord leaf;
-      uint32_t view;
-    };
-    std::vector<Keyed> keyed;
-    keyed.reserve(pairs.size());
-    for (const auto& [c, vi] : pairs) keyed.push_back({morton(c), c, vi});
-    std::sort(keyed.begin(), keyed.end(), [](const Keyed& a, const Keyed& b) {
-      if (a.key != b.key) return a.key < b.key;
-      if (a.leaf != b.leaf) return a.leaf < b.leaf;
-      return a.view < b.view;
-    });
-    for (size_t i = 0; i < keyed.size(); ++i) pairs[i] = {keyed[i].leaf, keyed[i].view};
+  struct Keyed {
+    uint64_t key;
+    Coord leaf;
+    uint32_t view;
+  };
+  std::vector<Keyed> keyed;
+  keyed.reserve(pairs.size());
+  for (const auto& [c, vi] : pairs) keyed.push_back({morton(c), c, vi});
+  std::sort(keyed.begin(), keyed.end(), [](const Keyed& a, const Keyed& b) {
+    if (a.key != b.key) return a.key < b.key;
+    if (a.leaf != b.leaf) return a.leaf < b.leaf;
+    return a.view < b.view;
+  });
+  LeafRuns runs;
+  runs.pairs = std::move(pairs);
+  for (size_t i = 0; i < keyed.size(); ++i) runs.pairs[i] = {keyed[i].leaf, keyed[i].view};
+  for (size_t i = 0; i < runs.pairs.size(); ++i)
+    if (i == 0 || runs.pairs[i].first != runs.pairs[i - 1].first) runs.starts.push_back(i);
+  runs.starts.push_back(runs.pairs.size());
+  return runs;
+}
+
+// A view as the projective update reads it; in a leaf, the voxels' camera
+// coordinates step by one voxel along each grid axis (`step`'s columns).
+struct UpdateView {
+  const DepthObservation* obs;
+  Eigen::Isometry3d cam_from_world;
+  Eigen::Matrix3f step;
+  float fx, fy, cx, cy, unit;
+  bool pinhole;
+};
+
+// A voxel's update from its signed distance sdf = d - z (d the measured
+// depth, z the voxel's), not far behind the surface: a running mean of the
+// clamped distance, the count, and the running sum of squares (Welford).
+inline void update_voxel(openvdb::Vec3s& vv, float sdf, float tau, float behind) {
+  const float s = std::clamp(sdf, -behind, tau);
+  const float n = vv[1] + 1.f;
+  const float delta = s - vv[0];
+  vv[0] += delta / n;
+  vv[2] += delta * (s - vv[0]);
+  vv[1] = n;
+}
+
+// The fusion kernel: one row of a leaf (D voxels along the grid's z) updated
+// from a pinhole view. The row is projected four voxels at a time (SSE2, the
+// scalar arithmetic's operations in its order), then only the voxels that
+// land on the image read their pixels and only those with a measured depth
+// not far behind them are updated: the branches follow the set bits, not each
+// voxel's outcome. `crop_row`: the row's voxels inside the crop box (bits).
+size_t fuse_row_pinhole(const UpdateView& c, const Eigen::Vector3f& row, int crop_row, float tau, float behind,
+                        openvdb::Vec3s* line) {
+  constexpr int D = kLeaf;
+  const ImageU16& depth = *c.obs->depth;
+  const float W = float(depth.width), H = float(depth.height);
+  alignas(16) int ix[D], iy[D];
+  alignas(16) float zs[D], sdf[D];
+  alignas(16) float measured[D] = {};
+  int on_image = 0;
+  for (int h = 0; h < D; h += 4) {
+    const __m128 k = _mm_setr_ps(float(h), float(h + 1), float(h + 2), float(h + 3));
+    const __m128 x = _mm_add_ps(_mm_set1_ps(row.x()), _mm_mul_ps(_mm_set1_ps(c.step(0, 2)), k));
+    const __m128 y = _mm_add_ps(_mm_set1_ps(row.y()), _mm_mul_ps(_mm_set1_ps(c.step(1, 2)), k));
+    const __m128 z = _mm_add_ps(_mm_set1_ps(row.z()), _mm_mul_ps(_mm_set1_ps(c.step(2, 2)), k));
+    const __m128 inv = _mm_div_ps(_mm_set1_ps(1.f), z);
+    // Nearest pixel (+0.5 then truncated); the comparisons also refuse NaN.
+    const __m128 half = _mm_set1_ps(0.5f), zero = _mm_setzero_ps();
+    const __m128 px = _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_set1_ps(c.fx), _mm_mul_ps(x, inv)), _mm_set1_ps(c.cx)), half);
+    const __m128 py = _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_set1_ps(c.fy), _mm_mul_ps(y, inv)), _mm_set1_ps(c.cy)), half);
+    const __m128 ok = _mm_and_ps(_mm_and_ps(_mm_cmpgt_ps(z, zero), _mm_and_ps(_mm_cmpge_ps(px, zero), _mm_cmpge_ps(py, zero))),
+                                 _mm_and_ps(_mm_cmplt_ps(px, _mm_set1_ps(W)), _mm_cmplt_ps(py, _mm_set1_ps(H))));
+    on_image |= _mm_movemask_ps(ok) << h;
+    _mm_store_si128(reinterpret_cast<__m128i*>(ix + h), _mm_cvttps_epi32(px));
+    _mm_store_si128(reinterpret_cast<__m128i*>(iy + h), _mm_cvttps_epi32(py));
+    _mm_store_ps(zs + h, z);
   }
-  std::vector<size_t> groups;  // start of each leaf's run in `pairs`
-  for (size_t i = 0; i < pairs.size(); ++i)
-    if (i == 0 || pairs[i].first != pairs[i - 1].first) groups.push_back(i);
-  groups.push_back(pairs.size());
+  on_image &= crop_row;
+  if (!on_image) return 0;
+  for (int b = on_image; b; b &= b - 1) {
+    const int k = std::countr_zero(unsigned(b));
+    measured[k] = float(depth.data[size_t(iy[k]) * size_t(depth.width) + size_t(ix[k])]);
+  }
+  int take = 0;
+  for (int h = 0; h < D; h += 4) {
+    const __m128 d = _mm_load_ps(measured + h);
+    const __m128 f = _mm_sub_ps(_mm_mul_ps(d, _mm_set1_ps(c.unit)), _mm_load_ps(zs + h));
+    _mm_store_ps(sdf + h, f);
+    // A measured depth (not 0), and the voxel not far behind it.
+    take |= _mm_movemask_ps(_mm_and_ps(_mm_cmpneq_ps(d, _mm_setzero_ps()), _mm_cmpge_ps(f, _mm_set1_ps(-tau)))) << h;
+  }
+  size_t updates = 0;
+  for (int b = take; b; b &= b - 1) {
+    const int k = std::countr_zero(unsigned(b));
+    update_voxel(line[k], sdf[k], tau, behind);
+    ++updates;
+  }
+  return updates;
+}
+
+// The same row through a lens with distortion, voxel by voxel.
+size_t fuse_row_distorted(const UpdateView& c, const Eigen::Vector3f& row, int crop_row, float tau, float behind,
+                          openvdb::Vec3s* line) {
+  const ImageU16& depth = *c.obs->depth;
+  const Intrinsics& K = c.obs->intrinsics;
+  const float W = float(depth.width), H = float(depth.height);
+  size_t updates = 0;
+  for (int k = 0; k < kLeaf; ++k) {
+    const Eigen::Vector3f pc = row + c.step.col(2) * float(k);
+    if (!(pc.z() > 0)) continue;
+    if (!(crop_row & (1 << k))) continue;
+    const auto pp = K.project(pc.cast<double>());
+    if (!pp) continue;
+    const float px = float(pp->x()) + 0.5f, py = float(pp->y()) + 0.5f;
+    if (!(px >= 0 && py >= 0 && px < W && py < H)) continue;
+    if (const uint16_t d = depth.data[size_t(int(py)) * depth.width + size_t(int(px))]) {
+      const float f = float(d) * c.unit - pc.z();
+      if (!(f < -tau)) {  // far behind the surface: unknown
+        update_voxel(line[k], f, tau, behind);
+        ++updates;
+      }
+    }
+  }
+  return updates;
+}
+
+// One leaf (origin `o`) updated by all its views in order while it sits in
+// cache: per voxel the same updates in the same order as one view after the
+// other. The crop box is tested per voxel only where the leaf crosses it.
+size_t fuse_leaf(const SparseVolume::Impl& m, const Coord& o, const UpdateView* const* views, size_t count,
+                 openvdb::Vec3s* val) {
+  constexpr int D = kLeaf;
+  const Eigen::Vector3d lo = m.centre(o), hi = m.centre(o.offsetBy(D - 1));
+  const bool inside = !m.crop || (m.crop->contains(lo) && m.crop->contains(hi));
+  const float tau = float(m.tau), behind = float(m.behind);
+  size_t updates = 0;
+  for (size_t p = 0; p < count; ++p) {
+    const UpdateView& c = *views[p];
+    const Eigen::Vector3f base = (c.cam_from_world * lo).cast<float>();
+    for (int i = 0; i < D; ++i)
+      for (int j = 0; j < D; ++j) {
+        const Eigen::Vector3f row = base + c.step.col(0) * float(i) + c.step.col(1) * float(j);
+        int crop_row = (1 << D) - 1;
+        if (!inside)
+          for (int k = 0; k < D; ++k)
+            if (!m.in_crop(m.centre(o.offsetBy(i, j, k)))) crop_row &= ~(1 << k);
+        openvdb::Vec3s* line = val + (i * D + j) * D;
+        updates += c.pinhole ? fuse_row_pinhole(c, row, crop_row, tau, behind, line)
+                             : fuse_row_distorted(c, row, crop_row, tau, behind, line);
+      }
+  }
+  return updates;
+}
+
+}  // namespace
+
+void SparseVolume::integrate(const DepthObservation& v, int threads) { integrate(std::vector<DepthObservation>{v}, threads); }
+
+// 1. Per view, the leaf nodes (8^3 voxels) within the truncation band of a
+//    measured point, every voxel in them active (as block-based TSDFs do:
+//    cheaper than dilating voxel by voxel). Every other pixel is enough to
+//    find them. Views in parallel.
+// 2. Each touched leaf with the views that touched it, in view order; the
+//    leaves joined into the volume's topology.
+// 3. Projective update of every touched voxel, leaf nodes in parallel (each
+//    leaf's voxels are written by one task only).
+void SparseVolume::integrate(const std::vector<DepthObservation>& views, int threads, const std::function<void()>& on_view) {
+  Impl& m = *impl_;
+  const int band = int(std::ceil(m.tau / m.voxel));
+  const LeafGrid grid = leaf_grid(m, band);
+  std::vector<Touched> touched(views.size());
+  in_arena(threads, [&] {
+    tbb::parallel_for(size_t(0), views.size(), [&](size_t vi) {
+      if (views[vi].depth && !views[vi].depth->empty()) touched[vi] = touched_leaves(m, views[vi], band, grid);
+    });
+  });
+
+  std::vector<std::pair<Coord, uint32_t>> pairs;
+  for (size_t vi = 0; vi < views.size(); ++vi) {
+    ++m.stats.views;
+    const Touched& t = touched[vi];
+    m.stats.samples_outside_crop += t.outside;
+    m.stats.depth_samples += t.used;
+    if (t.used == 0) ++m.stats.views_without_depth;
+    for (const Coord& c : t.leaves) pairs.emplace_back(c, uint32_t(vi));
+  }
+  auto views_done = [&] {
+    if (on_view)
+      for (size_t vi = 0; vi < views.size(); ++vi) on_view();
+  };
+  if (pairs.empty()) return views_done();
+  const LeafRuns runs = morton_runs(std::move(pairs));
   {
     openvdb::tree::ValueAccessor<TsdfTree> acc(m.tsdf->tree());
-    for (size_t g = 0; g + 1 < groups.size(); ++g) acc.touchLeaf(pairs[groups[g]].first)->setValuesOn();
+    for (size_t g = 0; g + 1 < runs.starts.size(); ++g) acc.touchLeaf(runs.pairs[runs.starts[g]].first)->setValuesOn();
   }
 
-  // 3. Projective update of every touched voxel, leaf nodes in parallel (each
-  //    leaf's voxels are written by one task only), each leaf by all its views
-  //    in order while it sits in cache: per voxel the same updates in the same
-  //    order as one view after the other. In a leaf, the voxels' camera
-  //    coordinates step by one voxel along each grid axis.
-  struct ViewData {
-    Eigen::Isometry3d cam_from_world;
-    Eigen::Matrix3f step;
-    float fx, fy, cx, cy, unit;
-    bool pinhole;
-  };
-  std::vector<ViewData> vd(views.size());
+  std::vector<UpdateView> vd(views.size());
   for (size_t vi = 0; vi < views.size(); ++vi) {
     const DepthObservation& v = views[vi];
     const Intrinsics& K = v.intrinsics;
+    vd[vi].obs = &v;
     vd[vi].cam_from_world = v.world_from_camera.inverse();
     vd[vi].step = (vd[vi].cam_from_world.linear() * m.voxel).cast<float>();
     vd[vi].fx = float(K.fx), vd[vi].fy = float(K.fy), vd[vi].cx = float(K.cx), vd[vi].cy = float(K.cy);
     vd[vi].unit = float(v.unit_m);
     vd[vi].pinhole = !K.has_distortion();
   }
-  const float tau = float(m.tau), behind = float(m.behind);
   std::atomic<size_t> updates{0};
   in_arena(threads, [&] {
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, groups.size() - 1), [&](const auto& range) {
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, runs.starts.size() - 1), [&](const auto& range) {
       size_t local = 0;
+      std::vector<const UpdateView*> leaf_views;
       openvdb::tree::ValueAccessor<const TsdfTree> acc(m.tsdf->tree());
       for (size_t g = range.begin(); g != range.end(); ++g) {
-        const Coord o = pairs[groups[g]].first;
+        const Coord o = runs.pairs[runs.starts[g]].first;
         auto* dst = const_cast<TsdfTree::LeafNodeType*>(acc.probeConstLeaf(o));
         if (!dst) continue;
-        constexpr int D = kLeaf;
-        // The crop box, tested per voxel only where the leaf crosses it.
-        const Eigen::Vector3d lo = m.centre(o), hi = m.centre(o.offsetBy(D - 1));
-        const bool inside = !m.crop || (m.crop->contains(lo) && m.crop->contains(hi));
-        openvdb::Vec3s* val = dst->buffer().data();
-        for (size_t p = groups[g]; p < groups[g + 1]; ++p) {
-          const DepthObservation& v = views[pairs[p].second];
-          const ViewData& c = vd[pairs[p].second];
-          const ImageU16& depth = *v.depth;
-          const Intrinsics& K = v.intrinsics;
-          const Eigen::Vector3f base = (c.cam_from_world * lo).cast<float>();
-          // A voxel's update from its signed distance sdf = d - z (d the
-          // measured depth, z the voxel's), not far behind the surface.
-          auto update = [&](openvdb::Vec3s& vv, float sdf) {
-            const float s = std::clamp(sdf, -behind, tau);
-            const float n = vv[1] + 1.f;
-            const float delta = s - vv[0];
-            vv[0] += delta / n;
-            vv[2] += delta * (s - vv[0]);
-            vv[1] = n;
-            ++local;
-          };
-          const float W = float(depth.width), H = float(depth.height);
-          for (int i = 0; i < D; ++i)
-            for (int j = 0; j < D; ++j) {
-              const Eigen::Vector3f row = base + c.step.col(0) * float(i) + c.step.col(1) * float(j);
-              openvdb::Vec3s* line = val + (i * D + j) * D;
-              if (c.pinhole) {
-                // A row of the leaf projected four voxels at a time (SSE2,
-                // the scalar arithmetic's operations in its order), then
-                // only the voxels that land on the image read their pixels
-                // and only those with a measured depth not far behind them
-                // are updated: the branches follow the set bits, not each
-                // voxel's outcome.
-                alignas(16) int ix[D], iy[D];
-                alignas(16) float zs[D], sdf[D];
-                alignas(16) float measured[D] = {};
-                int on_image = 0;
-                for (int h = 0; h < D; h += 4) {
-                  const __m128 k = _mm_setr_ps(float(h), float(h + 1), float(h + 2), float(h + 3));
-                  const __m128 x = _mm_add_ps(_mm_set1_ps(row.x()), _mm_mul_ps(_mm_set1_ps(c.step(0, 2)), k));
-                  const __m128 y = _mm_add_ps(_mm_set1_ps(row.y()), _mm_mul_ps(_mm_set1_ps(c.step(1, 2)), k));
-                  const __m128 z = _mm_add_ps(_mm_set1_ps(row.z()), _mm_mul_ps(_mm_set1_ps(c.step(2, 2)), k));
-                  const __m128 inv = _mm_div_ps(_mm_set1_ps(1.f), z);
-                  // Nearest pixel (+0.5 then truncated); the comparisons also refuse NaN.
-                  const __m128 half = _mm_set1_ps(0.5f), zero = _mm_setzero_ps();
-                  const __m128 px = _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_set1_ps(c.fx), _mm_mul_ps(x, inv)), _mm_set1_ps(c.cx)), half);
-                  const __m128 py = _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_set1_ps(c.fy), _mm_mul_ps(y, inv)), _mm_set1_ps(c.cy)), half);
-                  const __m128 ok = _mm_and_ps(_mm_and_ps(_mm_cmpgt_ps(z, zero), _mm_and_ps(_mm_cmpge_ps(px, zero), _mm_cmpge_ps(py, zero))),
-                                               _mm_and_ps(_mm_cmplt_ps(px, _mm_set1_ps(W)), _mm_cmplt_ps(py, _mm_set1_ps(H))));
-                  on_image |= _mm_movemask_ps(ok) << h;
-                  _mm_store_si128(reinterpret_cast<__m128i*>(ix + h), _mm_cvttps_epi32(px));
-                  _mm_store_si128(reinterpret_cast<__m128i*>(iy + h), _mm_cvttps_epi32(py));
-                  _mm_store_ps(zs + h, z);
-                }
-                if (!inside)
-                  for (int k = 0; k < D; ++k)
-                    if (!m.in_crop(m.centre(o.offsetBy(i, j, k)))) on_image &= ~(1 << k);
-                if (!on_image) continue;
-                for (int b = on_image; b; b &= b - 1) {
-                  const int k = std::countr_zero(unsigned(b));
-                  measured[k] = float(depth.data[size_t(iy[k]) * size_t(depth.width) + size_t(ix[k])]);
-                }
-                int take = 0;
-                for (int h = 0; h < D; h += 4) {
-                  const __m128 d = _mm_load_ps(measured + h);
-                  const __m128 f = _mm_sub_ps(_mm_mul_ps(d, _mm_set1_ps(c.unit)), _mm_load_ps(zs + h));
-                  _mm_store_ps(sdf + h, f);
-                  // A measured depth (not 0), and the voxel not far behind it.
-                  take |= _mm_movemask_ps(_mm_and_ps(_mm_cmpneq_ps(d, _mm_setzero_ps()), _mm_cmpge_ps(f, _mm_set1_ps(-tau)))) << h;
-                }
-                for (int b = take; b; b &= b - 1) {
-                  const int k = std::countr_zero(unsigned(b));
-                  update(line[k], sdf[k]);
-                }
-                continue;
-              }
-              for (int k = 0; k < D; ++k) {
-                const Eigen::Vector3f pc = row + c.step.col(2) * float(k);
-                if (!(pc.z() > 0)) continue;
-                if (!inside && !m.in_crop(m.centre(o.offsetBy(i, j, k)))) continue;
-                const auto pp = K.project(pc.cast<double>());
-                if (!pp) continue;
-                const float px = float(pp->x()) + 0.5f, py = float(pp->y()) + 0.5f;
-                if (!(px >= 0 && py >= 0 && px < W && py < H)) continue;
-                if (const uint16_t d = depth.data[size_t(int(py)) * depth.width + size_t(int(px))]) {
-                  const float f = float(d) * c.unit - pc.z();
-                  if (!(f < -tau)) update(line[k], f);  // far behind the surface: unknown
-                }
-              }
-            }
-        }
+        leaf_views.clear();
+        for (size_t p = runs.starts[g]; p < runs.starts[g + 1]; ++p) leaf_views.push_back(&vd[runs.pairs[p].second]);
+        local += fuse_leaf(m, o, leaf_views.data(), leaf_views.size(), dst->buffer().data());
       }
       updates += local;
     });
   });
   m.stats.voxel_updates += updates.load();
-  if (on_view)
-    for (size_t vi = 0; vi < views.size(); ++vi) on_view();
+  views_done();
 }
 
 HullStats SparseVolume::carve_hull(const std::vector<SilhouetteObservation>& views,

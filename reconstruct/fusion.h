@@ -124,8 +124,9 @@ class SparseVolume {
   size_t active_voxels() const;   // all grids
   size_t memory_bytes() const;    // all grids
 
+  struct Impl;  // the grids (fusion.cpp's own; named here for its step functions)
+
  private:
-  struct Impl;
   std::unique_ptr<Impl> impl_;
 };
 
