@@ -404,17 +404,18 @@ int bench_reconstruct(const fs::path& out, const std::string& scene_in) {
     job.geometry = Geometry::depth;
     job.per_region = false;
     job.textures = false;
-    Result<Report> r;
+    Result<ReconstructSummary> r;
     std::vector<double> ours_runs, ours_fusion_runs;
     for (int k = 0; k < kRuns; ++k) {
       r = run_reconstruct_job(job);
       if (!r) return error(r.error().message);
-      ours_runs.push_back(r->seconds), ours_fusion_runs.push_back(r->counts["seconds_fusion"]);
+      ours_runs.push_back(r->seconds), ours_fusion_runs.push_back(r->seconds_fusion);
     }
     const double ours_s = median(ours_runs), ours_fusion = median(ours_fusion_runs);
     t.row_labels.push_back("ours (OpenVDB fusion + facets + octree)");
-    t.rows.push_back({1e3 * w, ours_s, ours_fusion, 1e3 * r->errors["facet_distance_median_m"],
-                      1e3 * r->errors["facet_distance_p99_m"], r->errors["facets_within_w_fraction"], r->counts["facets"]});
+    if (!r->truth) return error("bench reconstruct: the rig session has no ground truth");
+    t.rows.push_back({1e3 * w, ours_s, ours_fusion, 1e3 * r->truth->all.median_m, 1e3 * r->truth->all.p99_m,
+                      r->truth->all.within_size, double(r->facets.facets)});
     std::fprintf(stderr, "w %.1f mm: ours %.2f s (fusion %.2f s), median %.3f mm, within w %.4f, %g facets\n", 1e3 * w, ours_s,
                  ours_fusion, t.rows.back()[3], t.rows.back()[5], t.rows.back()[6]);
     // The patch mesh's vertices (interpolated crossings), comparable with marching cubes' vertices.
@@ -494,8 +495,8 @@ int bench_reconstruct(const fs::path& out, const std::string& scene_in) {
     if (!model) return error(model.error().message);
     SweepTable te;
     te.columns = {"angle_deg", "median_px", "p99_px", "max_px", "bound_ratio_max", "predicted_px"};
-    const double w_coarse = std::get<double>(r->params["voxel_coarse_m"]), z = std::get<double>(r->params["near_distance_m"]);
-    const double R = std::get<double>(r->params["view_distance_m"]);
+    const double w_coarse = r->voxel.coarse_m, z = r->near_distance_m;
+    const double R = r->view_distance_m;
     const double f = model->cameras.front().intrinsics.fx;
     for (double a : {1.0, 2.5, 5.0, 7.5, 10.0, 15.0}) {
       auto e = measure_texel_error(*model, session, a);
@@ -624,7 +625,7 @@ int bench_render(const fs::path& out, const std::string& scene_in) {
     job.holdout = held;
     auto built = run_reconstruct_job(job);
     if (!built) return error(built.error().message);
-    rep.counts["facets_" + scene] = built->counts.at("facets");
+    rep.counts["facets_" + scene] = double(built->facets.facets);
     // The model's size in base voxels along its longest side (the "128^3-voxel model").
     const auto loaded = load_model(model);
     const bool sized = loaded && loaded->voxel_size_m > 0 && !loaded->bounds.isEmpty();
@@ -708,7 +709,7 @@ int bench_render(const fs::path& out, const std::string& scene_in) {
         if (st.label == l) fine_draws.push_back(st.draw);
     auto fine_timing = time_orbit(fine.out, fine_draws, 1280, 720, 12);
     if (!fine_timing) return error(fine_timing.error().message);
-    rep.counts["facets_" + scene + "_128"] = fine_built->counts.at("facets");
+    rep.counts["facets_" + scene + "_128"] = double(fine_built->facets.facets);
     for (size_t k = 0; k < fine_draws.size(); ++k) {
       const auto& ft = (*fine_timing)[k];
       rep.counts[fmt::format("frame_ms_{}_128_{}", scene, fine_labels[k])] = ft.median_ms;
@@ -716,7 +717,7 @@ int bench_render(const fs::path& out, const std::string& scene_in) {
       for (size_t f = 0; f < ft.frame_ms.size(); ++f) ratios.push_back(ft.frame_ms[f] / (*fine_timing)[0].frame_ms[f]);
       if (k > 0) rep.counts[fmt::format("lod_time_ratio_{}_128_{}", scene, fine_labels[k])] = median(ratios);
       std::fprintf(stderr, "%s at 128 voxels per side (%.0f facets), %s: %.1f ms per 1280x720 frame, x%.3f of %s (paired median)\n",
-                   scene.c_str(), fine_built->counts.at("facets"), fine_labels[k].c_str(), ft.median_ms, median(ratios),
+                   scene.c_str(), double(fine_built->facets.facets), fine_labels[k].c_str(), ft.median_ms, median(ratios),
                    no_lod.c_str());
     }
   }

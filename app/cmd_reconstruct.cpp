@@ -64,7 +64,7 @@ int run(const ReconstructArgs& a) {
   job.holdout = *held;
   auto r = run_reconstruct_job(job);
   if (!r) return error(in_flag_terms(r.error(), flags));
-  return finish(*r, job.out / "report.json");
+  return finish(r->to_report(), job.out / "report.json");
 }
 
 }  // namespace s2r::cli

@@ -41,12 +41,14 @@ struct Timer {
     getrusage(RUSAGE_SELF, &u);
     return u.ru_utime.tv_sec + u.ru_stime.tv_sec + 1e-6 * (u.ru_utime.tv_usec + u.ru_stime.tv_usec);
   }
-  void lap(const std::string& step) {
-    rep.counts["seconds_" + step] = clock.seconds();
+  double lap(const std::string& step) {
+    const double seconds = clock.seconds();
+    rep.counts["seconds_" + step] = seconds;
     const double c = cpu_now();
     rep.counts["cpu_" + step] = c - cpu0;
     cpu0 = c;
     clock = Stopwatch();
+    return seconds;
   }
 };
 
@@ -452,6 +454,7 @@ class CameraDepths {
     back_runs_ += rs.back_faces_in_runs;
     return d;
   }
+  size_t triangles_drawn() const { return drawn_; }
   void report(Report& rep) const {
     rep.counts["camera_depth_triangles_drawn"] = double(drawn_);
     rep.counts["camera_depth_pixels_tested"] = double(tested_);
@@ -517,7 +520,7 @@ Status write_textures(const ReconstructJob& job, const std::vector<View>& views,
 
 // The facets and their cameras; without textures each camera's depth is made
 // on the visibility grid when the facets' test comes to it.
-void build_model_facets(const ReconstructJob& job, const std::vector<View>& views, const std::vector<EvidenceVoxel>& evidence,
+FacetStats build_model_facets(const ReconstructJob& job, const std::vector<View>& views, const std::vector<EvidenceVoxel>& evidence,
                         const std::vector<ImageF>& distance, const CameraDepths& depth, double w0, Model& model,
                         Report& rep) {
   std::vector<FacetCamera> fc;
@@ -546,6 +549,7 @@ void build_model_facets(const ReconstructJob& job, const std::vector<View>& view
   rep.skipped["facet_camera_pairs_occluded"] = double(st.occluded);
   rep.skipped["facet_camera_pairs_outside_image"] = double(st.outside_image);
   depth.report(rep);
+  return st;
 }
 
 Eigen::AlignedBox3d facet_bounds(const std::vector<FacetRecord>& facets, const Eigen::Vector3d& centre) {
@@ -560,7 +564,8 @@ Eigen::AlignedBox3d facet_bounds(const std::vector<FacetRecord>& facets, const E
 }
 
 // The synthetic rig knows the truth: the model's error against it.
-Status check_against_truth(const ReconstructJob& job, const Session& s, const Model& model, double w0, Report& rep) {
+Result<ReconstructTruth> check_against_truth(const ReconstructJob& job, const Session& s, const Model& model, double w0,
+                                             Report& rep) {
   const fs::path truth_mesh = s.root / "ground_truth" / "geometry.ply";
   auto mesh = read_ply_mesh(truth_mesh);
   if (!mesh) return std::unexpected(mesh.error());
@@ -568,15 +573,17 @@ Status check_against_truth(const ReconstructJob& job, const Session& s, const Mo
   for (const auto& f : model.facets)
     if (f.size <= w0 * 1.01) solid.push_back(f);
   const SurfaceDistance distance_to_truth(*mesh, w0 / 5);
-  const SurfaceError all = distance_to_truth.error(model.facets);
-  const SurfaceError fine = distance_to_truth.error(solid);
-  rep.errors["facets_within_w_fraction"] = all.within_size;
-  rep.errors["facet_distance_median_m"] = all.median_m;
-  rep.errors["facet_distance_p99_m"] = all.p99_m;
-  rep.errors["fine_facets_within_w_fraction"] = fine.within_size;
+  ReconstructTruth truth;
+  truth.all = distance_to_truth.error(model.facets);
+  truth.fine = distance_to_truth.error(solid);
+  rep.errors["facets_within_w_fraction"] = truth.all.within_size;
+  rep.errors["facet_distance_median_m"] = truth.all.median_m;
+  rep.errors["facet_distance_p99_m"] = truth.all.p99_m;
+  rep.errors["fine_facets_within_w_fraction"] = truth.fine.within_size;
   if (job.textures) {
     auto de = camera_depth_error(model, job.out, s.root);
     if (!de) return std::unexpected(de.error());
+    truth.camera_depth = *de;
     rep.errors["camera_depth_median_m"] = de->median_m;
     rep.errors["camera_depth_p90_m"] = de->p90_m;
     rep.errors["camera_depth_missing_fraction"] = de->missing;
@@ -584,10 +591,11 @@ Status check_against_truth(const ReconstructJob& job, const Session& s, const Mo
   if (fs::exists(s.root / "ground_truth" / "strands.ply")) {
     auto sc = strand_coverage(model, s.root);
     if (!sc) return std::unexpected(sc.error());
+    truth.strands = *sc;
     rep.errors["strand_pixels_covered_fraction"] = sc->covered;
     rep.errors["facet_pixels_on_background_fraction"] = sc->background;
   }
-  return {};
+  return truth;
 }
 
 }  // namespace
@@ -605,9 +613,10 @@ Status ReconstructJob::validate() const {
 // geometry and voxel size, fusion, hull, evidence and the fused surface (the
 // octree in a task of its own alongside), camera depth, textures, facets,
 // write; then the check against the synthetic rig's truth where there is one.
-Result<Report> run_reconstruct_job(const ReconstructJob& job) {
+Result<ReconstructSummary> run_reconstruct_job(const ReconstructJob& job) {
   Stopwatch total;
-  Report rep;
+  ReconstructSummary sum;
+  Report& rep = sum.report;
   rep.stage = "reconstruct";
   Timer timer{rep, {}};
   if (auto st = job.validate(); !st) return std::unexpected(st.error());
@@ -623,13 +632,20 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   auto voxel = choose_job_voxel(job, *extent, rep);
   if (!voxel) return std::unexpected(voxel.error());
   const double w0 = voxel->base_m;
+  sum.geometry = plan->mode;
+  sum.voxel = *voxel;
+  sum.view_distance_m = extent->view_distance;
+  sum.near_distance_m = extent->near_distance;
+  sum.cameras = views->size();
+  sum.held_out_views = in->held.size();
+  sum.views_without_depth = size_t(std::count_if(views->begin(), views->end(), [](const View& v) { return v.depth.empty(); }));
   rep.params["geometry"] = std::string(geometry_name(plan->mode));
   rep.params["poses"] = in->poses.source;
 
   SparseVolume volume(w0, job.truncation_voxels * w0, extent->crop);
   std::vector<DepthObservation> depth_obs;
   if (plan->uses_depth()) depth_obs = fuse_depth(job, *in, *views, volume, rep);
-  timer.lap("fusion");
+  sum.seconds_fusion = timer.lap("fusion");
   if (plan->uses_hull()) carve_hull(job, *plan, *views, depth_obs, extent->box, volume, rep);
   timer.lap("hull");
 
@@ -671,7 +687,8 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
     rep.skipped["camera_textures_not_written"] = double(views->size());
   }
   timer.lap("textures");
-  build_model_facets(job, *views, evidence, distance, depth, w0, model, rep);
+  sum.facets = build_model_facets(job, *views, evidence, distance, depth, w0, model, rep);
+  sum.camera_depth_triangles_drawn = depth.triangles_drawn();
   timer.lap("facets");
 
   model.bounds = facet_bounds(model.facets, extent->centre);
@@ -687,14 +704,16 @@ Result<Report> run_reconstruct_job(const ReconstructJob& job) {
   if (auto st = save_model(job.out, model); !st) return std::unexpected(st.error());
   timer.lap("write");
   rep.counts["model_bytes"] = double(model.facets.size() * sizeof(FacetRecord) + model.facet_cameras.size() * 4);
-  rep.seconds = total.seconds();
+  rep.seconds = sum.seconds = total.seconds();
 
   // Not counted in the build seconds.
   if (fs::exists(in->s.root / "ground_truth" / "geometry.ply")) {
-    if (auto st = check_against_truth(job, in->s, model, w0, rep); !st) return std::unexpected(st.error());
+    auto truth = check_against_truth(job, in->s, model, w0, rep);
+    if (!truth) return std::unexpected(truth.error());
+    sum.truth = std::move(*truth);
     timer.lap("truth_check");
   }
-  return rep;
+  return sum;
 }
 
 }  // namespace s2r

@@ -15,6 +15,8 @@
 #include "capture/session.h"
 #include "core/report.h"
 #include "core/result.h"
+#include "reconstruct/microfacets.h"
+#include "reconstruct/rig_eval.h"
 
 namespace s2r {
 
@@ -58,6 +60,31 @@ struct ReconstructJob {
   Status validate() const;
 };
 
-Result<Report> run_reconstruct_job(const ReconstructJob& job);
+// The model's error against the synthetic rig's ground truth.
+struct ReconstructTruth {
+  SurfaceError all, fine;                 // facet centres to the true surface (fine: facets of w)
+  std::optional<DepthError> camera_depth;  // the cameras' textures' depth (with textures)
+  std::optional<StrandCoverage> strands;   // scenes with strands
+};
+
+// What a reconstruction did, typed (as Ceres' Solver::Summary): what benches
+// and tests read, and the whole report (seconds and CPU seconds per step,
+// every count, what was skipped, warnings) for report.json.
+struct ReconstructSummary {
+  Geometry geometry = Geometry::automatic;  // what `automatic` resolved to
+  VoxelChoice voxel;                        // the facet sizes and how they were chosen
+  double view_distance_m = 0, near_distance_m = 0;
+  size_t cameras = 0, held_out_views = 0, views_without_depth = 0;
+  FacetStats facets;
+  size_t camera_depth_triangles_drawn = 0;
+  double seconds = 0, seconds_fusion = 0;  // the build (the truth check not counted), fusion alone
+  std::optional<ReconstructTruth> truth;   // sessions with ground truth only
+  Report report;
+
+  const Report& to_report() const { return report; }
+  std::string brief() const { return report.brief(); }
+};
+
+Result<ReconstructSummary> run_reconstruct_job(const ReconstructJob& job);
 
 }  // namespace s2r

@@ -46,13 +46,13 @@ const fs::path& session(const std::string& scene, int views, int width = 640, in
   return cache.emplace(key, dir).first->second;
 }
 
-Report reconstruct(ReconstructJob job) {
+ReconstructSummary reconstruct(ReconstructJob job) {
   auto r = run_reconstruct_job(job);
   EXPECT_TRUE(r) << r.error().message;
-  return r ? *r : Report{};
+  return r ? *r : ReconstructSummary{};
 }
 
-void print(const std::string& what, const Report& r) {
+void print(const std::string& what, const ReconstructSummary& r) {
   std::printf("%s: %s\n", what.c_str(), r.brief().c_str());
 }
 
@@ -64,22 +64,22 @@ TEST(ReconstructRig, TexturedBunnyFacetsOnTheSurface) {
   ReconstructJob job;
   job.session = session("bunny", 24);
   job.out = scratch() / "bunny_model";
-  const Report r = reconstruct(job);
+  const ReconstructSummary r = reconstruct(job);
   print("bunny", r);
   // >= 99 % of facet centres within their own w of the true surface.
-  EXPECT_GE(r.errors.at("facets_within_w_fraction"), 0.99);
+  EXPECT_GE(r.truth.value().all.within_size, 0.99);
   // Per-camera depth against the exact depth: median < w/4 where the surface is seen.
-  const double w = std::get<double>(r.params.at("voxel_m"));
-  EXPECT_LT(r.errors.at("camera_depth_median_m"), w / 4);
-  EXPECT_LT(r.errors.at("camera_depth_missing_fraction"), 0.03);
-  EXPECT_EQ(std::get<std::string>(r.params.at("geometry")), "both");
+  const double w = r.voxel.base_m;
+  EXPECT_LT(r.truth.value().camera_depth.value().median_m, w / 4);
+  EXPECT_LT(r.truth.value().camera_depth.value().missing, 0.03);
+  EXPECT_EQ(r.geometry, Geometry::both);
   // Per region: both sizes occur, the reliable ones dominate on a textured solid.
-  EXPECT_GT(r.counts.at("facets_fine"), r.counts.at("facets_coarse"));
-  EXPECT_GT(r.counts.at("facets_coarse"), 0);
+  EXPECT_GT(r.facets.fine, r.facets.coarse);
+  EXPECT_GT(r.facets.coarse, 0u);
   // The model loads back with its textures.
   auto m = load_model(job.out);
   ASSERT_TRUE(m) << m.error().message;
-  EXPECT_EQ(m->facets.size(), size_t(r.counts.at("facets")));
+  EXPECT_EQ(m->facets.size(), r.facets.facets);
   EXPECT_EQ(m->cameras.size(), 24u);
   auto tex = read_rgbaz(job.out / m->cameras[3].texture);
   ASSERT_TRUE(tex) << tex.error().message;
@@ -96,10 +96,10 @@ TEST(ReconstructRig, WithoutTexturesTheSameFacets) {
   job.voxel_m = 0.003;
   job.geometry = Geometry::depth;
   job.out = scratch() / "bunny_textured_3mm";
-  const Report with = reconstruct(job);
+  const ReconstructSummary with = reconstruct(job);
   job.textures = false;
   job.out = scratch() / "bunny_untextured_3mm";
-  const Report without = reconstruct(job);
+  const ReconstructSummary without = reconstruct(job);
   auto a = load_model(scratch() / "bunny_textured_3mm");
   auto b = load_model(job.out);
   ASSERT_TRUE(a && b);
@@ -110,21 +110,21 @@ TEST(ReconstructRig, WithoutTexturesTheSameFacets) {
     ASSERT_EQ(a->facets[i].camera_count, b->facets[i].camera_count) << i;
   }
   EXPECT_EQ(a->facet_cameras, b->facet_cameras);
-  EXPECT_EQ(with.counts.at("camera_depth_triangles_drawn"), without.counts.at("camera_depth_triangles_drawn"));
-  EXPECT_GT(with.counts.at("camera_depth_triangles_drawn"), 1000);
-  EXPECT_EQ(without.skipped.count("camera_textures_not_written"), 1u);
+  EXPECT_EQ(with.camera_depth_triangles_drawn, without.camera_depth_triangles_drawn);
+  EXPECT_GT(with.camera_depth_triangles_drawn, 1000u);
+  EXPECT_EQ(without.report.skipped.count("camera_textures_not_written"), 1u);
 }
 
 TEST(ReconstructRig, FuzzyStrandsAreCovered) {
   ReconstructJob job;
   job.session = session("fuzzy", 24);
   job.out = scratch() / "fuzzy_model";
-  const Report r = reconstruct(job);
+  const ReconstructSummary r = reconstruct(job);
   print("fuzzy", r);
-  EXPECT_GE(r.errors.at("strand_pixels_covered_fraction"), 0.95);
-  EXPECT_GT(r.counts.at("facets_fuzzy"), 100);
+  EXPECT_GE(r.truth.value().strands.value().covered, 0.95);
+  EXPECT_GT(r.facets.fuzzy, 100u);
   // Fuzzy regions get the larger facets.
-  EXPECT_GT(r.counts.at("facets_coarse"), r.counts.at("facets_fine"));
+  EXPECT_GT(r.facets.coarse, r.facets.fine);
 }
 
 TEST(ReconstructRig, CameraInTheMiddleRoom) {
@@ -132,12 +132,12 @@ TEST(ReconstructRig, CameraInTheMiddleRoom) {
   ReconstructJob job;
   job.session = session("room", 24, 320, 240);
   job.out = scratch() / "room_model";
-  const Report r = reconstruct(job);
+  const ReconstructSummary r = reconstruct(job);
   print("room", r);
-  EXPECT_EQ(std::get<std::string>(r.params.at("geometry")), "depth");
-  EXPECT_EQ(r.skipped.at("visual_hull_not_needed"), 1);
-  EXPECT_GE(r.errors.at("facets_within_w_fraction"), 0.99);
-  EXPECT_LT(r.errors.at("camera_depth_median_m"), std::get<double>(r.params.at("voxel_m")) / 4);
+  EXPECT_EQ(r.geometry, Geometry::depth);
+  EXPECT_EQ(r.report.skipped.at("visual_hull_not_needed"), 1);
+  EXPECT_GE(r.truth.value().all.within_size, 0.99);
+  EXPECT_LT(r.truth.value().camera_depth.value().median_m, r.voxel.base_m / 4);
 }
 
 TEST(ReconstructRig, StiffCases) {
@@ -158,11 +158,11 @@ TEST(ReconstructRig, StiffCases) {
   ReconstructJob job;
   job.session = zero;
   job.out = scratch() / "blob_zero_model";
-  Report r = reconstruct(job);
+  ReconstructSummary r = reconstruct(job);
   print("zero depth view", r);
-  EXPECT_EQ(r.skipped.at("views_without_depth"), 1);
-  EXPECT_FALSE(r.warnings.empty());
-  EXPECT_GT(r.counts.at("facets"), 100);
+  EXPECT_EQ(r.views_without_depth, 1u);
+  EXPECT_FALSE(r.report.warnings.empty());
+  EXPECT_GT(r.facets.facets, 100u);
 
   // One camera only: every other view held out.
   job.session = base;
@@ -170,9 +170,9 @@ TEST(ReconstructRig, StiffCases) {
   job.holdout = {1, 2, 3, 4, 5, 6, 7};
   r = reconstruct(job);
   print("one camera", r);
-  EXPECT_EQ(r.skipped.at("held_out_views"), 7);
-  EXPECT_GT(r.counts.at("facets"), 10);
-  EXPECT_EQ(r.counts.at("facets_fine"), 0);  // no agreement to measure: all coarse
+  EXPECT_EQ(r.held_out_views, 7u);
+  EXPECT_GT(r.facets.facets, 10u);
+  EXPECT_EQ(r.facets.fine, 0u);  // no agreement to measure: all coarse
   auto m = load_model(job.out);
   ASSERT_TRUE(m);
   for (const auto& c : m->cameras) EXPECT_EQ(c.session_frame, 0);
@@ -184,9 +184,9 @@ TEST(ReconstructRig, StiffCases) {
   r = reconstruct(job);
   print("w below a pixel", r);
   bool warned = false;
-  for (const auto& w : r.warnings) warned = warned || w.find("below one input pixel") != std::string::npos;
+  for (const auto& w : r.report.warnings) warned = warned || w.find("below one input pixel") != std::string::npos;
   EXPECT_TRUE(warned);
-  EXPECT_GT(r.counts.at("facets"), 1000);
+  EXPECT_GT(r.facets.facets, 1000u);
 
   // w of the whole object: a handful of facets, all finite.
   job.out = scratch() / "blob_huge";

@@ -234,7 +234,7 @@ void BM_ReconstructJob(benchmark::State& state) {
     }
     state.SetIterationTime(r->seconds);
     // Each step's seconds too, averaged over the iterations.
-    for (const auto& [key, value] : r->counts)
+    for (const auto& [key, value] : r->report.counts)
       if (key.starts_with("seconds_")) state.counters[key.substr(8)] += value;
   }
   for (auto& [key, counter] : state.counters) counter.flags = benchmark::Counter::kAvgIterations;
