@@ -13,7 +13,9 @@
 #include <variant>
 #include <vector>
 
+#include "calibrate/intrinsics.h"
 #include "calibrate/table_markers.h"
+#include "capture/capture_devices.h"
 #include "capture/import_datasets.h"
 #include "capture/synth_rig.h"
 #include "reconstruct/reconstruct_job.h"
@@ -22,6 +24,7 @@
 #include "render/model_eval.h"
 #include "render/raytrace_job.h"
 #include "render/session_preview.h"
+#include "render/viewer.h"
 
 namespace s2r::cli {
 
@@ -40,16 +43,18 @@ struct InspectArgs {
 };
 struct DevicesArgs {};
 struct CaptureArgs {
-  std::string out, replay, camera, depth, turntable, record, report, scene = "blob";
-  bool sim = false, resume = false;
-  int steps = 24, width = 640, height = 480, settle_ms = 300, flush = -1;
-  uint64_t seed = 7;
+  CaptureOptions capture;
+  DeviceOptions devices;
+  SimOptions sim;
+  bool use_sim = false;
+  std::string replay, camera, depth, turntable, report;
+  int settle_ms = int(DeviceOptions{}.settle.count());
+  int flush = -1;  // -1: the capture's default for real devices, 0 simulated or replayed
   std::vector<std::string> faults;
 };
 struct IntrinsicsArgs {
+  IntrinsicsOptions options;  // the board is parsed from `board`
   std::string images, board, out, report;
-  double reject = 3.0;
-  bool fix_k3 = false;
 };
 struct DepthCalibrationArgs {
   std::string session, board = "chessboard:9x6:0.02", out;
@@ -93,22 +98,19 @@ struct PreviewArgs {
   PreviewOptions options;
 };
 struct RenderArgs {
-  std::string model, out, pose, report;
-  int view = -1;
-  double scale = 1;
+  RenderJob job;
+  std::string report;
+  int view = -1;  // -1: none (then a view file)
   DrawArgs draw;
-  FrameSource source;
   EnvArgs env;
 };
 struct EvalArgs {
-  std::string model, out, holdout;
-  bool no_baselines = false;
+  EvalJob job;
+  std::string out, holdout;  // out: default MODEL/eval
   DrawArgs draw;
-  FrameSource source;
 };
 struct ViewArgs {
-  std::string model, screenshot, pose;
-  int width = 1280, height = 720, frames = 0;
+  ViewerOptions options;
   DrawArgs draw;
   EnvArgs env;
 };

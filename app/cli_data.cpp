@@ -45,10 +45,10 @@ void add_import(CLI::App& app, Chosen& chosen) {
 void add_capture(CLI::App& app, Chosen& chosen) {
   auto* sub = app.add_subcommand("capture", "Run a turntable capture session (simulated, replayed or real devices)");
   auto a = std::make_shared<CaptureArgs>();
-  sub->add_option("--out", a->out, "session folder")->required();
-  sub->add_option("--steps", a->steps, "turntable steps over 360 degrees")->capture_default_str();
-  sub->add_flag("--resume", a->resume, "continue a session that was interrupted or killed");
-  auto* sim = sub->add_flag("--sim", a->sim, "simulated rig: real V4L2/GRBL driver code over simulated devices");
+  sub->add_option("--out", a->capture.out, "session folder")->required();
+  sub->add_option("--steps", a->capture.steps, "turntable steps over 360 degrees")->capture_default_str();
+  sub->add_flag("--resume", a->capture.resume, "continue a session that was interrupted or killed");
+  auto* sim = sub->add_flag("--sim", a->use_sim, "simulated rig: real V4L2/GRBL driver code over simulated devices");
   auto* rep = sub->add_option("--replay", a->replay, "replay a recording folder (color.v4l2rec, depth.v4l2rec, turntable.transcript)");
   auto* cam = sub->add_option("--camera", a->camera, "colour camera: /dev/videoN or libcamera:ID");
   sub->add_option("--depth", a->depth, "depth camera node (UVC Z16), optional");
@@ -56,13 +56,13 @@ void add_capture(CLI::App& app, Chosen& chosen) {
   sim->excludes(rep)->excludes(cam);
   rep->excludes(cam);
   cam->needs(tty);
-  sub->add_option("--record", a->record, "also record the device boundaries into this folder");
-  sub->add_option("--width", a->width, "image width")->capture_default_str();
-  sub->add_option("--height", a->height, "image height")->capture_default_str();
+  sub->add_option("--record", a->devices.record_dir, "also record the device boundaries into this folder");
+  sub->add_option("--width", a->devices.width, "image width")->capture_default_str();
+  sub->add_option("--height", a->devices.height, "image height")->capture_default_str();
   sub->add_option("--settle-ms", a->settle_ms, "wait after the table stops")->capture_default_str();
   sub->add_option("--flush", a->flush, "colour frames dropped after each move (default: 2 real, 0 sim/replay)");
-  sub->add_option("--scene", a->scene, "--sim: rig scene (bunny, fuzzy, room, blob)")->capture_default_str();
-  sub->add_option("--seed", a->seed, "--sim: noise seed")->capture_default_str();
+  sub->add_option("--scene", a->sim.scene, "--sim: rig scene (bunny, fuzzy, room, blob)")->capture_default_str();
+  sub->add_option("--seed", a->sim.seed, "--sim: noise seed")->capture_default_str();
   sub->add_option("--sim-fault", a->faults, "--sim: inject KIND@N (camera-vanish, depth-vanish, camera-timeout, "
                                             "eagain-storm, serial-silent, table-alarm, drop-ok, table-reset)");
   sub->add_option("--report", a->report, "report path (default OUT/report.json)");
@@ -93,8 +93,9 @@ void add_calibrate(CLI::App& app, Chosen& chosen) {
   in->add_option("--board", a->board, "chessboard:COLSxROWS:SQUARE_M or charuco:COLSxROWS:SQUARE_M:MARKER_M[:DICT]")
       ->required();
   in->add_option("--out", a->out, "calibration file to write (JSON, s2r.calibration)")->required();
-  in->add_option("--reject-factor", a->reject, "drop a view whose RMS exceeds this x the median")->capture_default_str();
-  in->add_flag("--fix-k3", a->fix_k3, "keep k3 = 0 (most lenses; steadier with few or central views)");
+  in->add_option("--reject-factor", a->options.reject_factor, "drop a view whose RMS exceeds this x the median")
+      ->capture_default_str();
+  in->add_flag("--fix-k3", a->options.fix_k3, "keep k3 = 0 (most lenses; steadier with few or central views)");
   in->add_option("--report", a->report, "report path (default: beside --out)");
   in->callback([a, &chosen] { chosen = a; });
 

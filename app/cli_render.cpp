@@ -79,15 +79,16 @@ void add_render(CLI::App& app, Chosen& chosen) {
                                  "Offscreen image of a model (EGL) at a session frame's camera (--view I; held-out\n"
                                  "frames need --session) or a view file (--pose FILE, as the viewer's P key saves).");
   auto a = std::make_shared<RenderArgs>();
-  sub->add_option("model", a->model, "model folder (s2r reconstruct)")->required();
-  sub->add_option("--out", a->out, "PNG to write")->required();
+  RenderJob& job = a->job;
+  sub->add_option("model", job.model, "model folder (s2r reconstruct)")->required();
+  sub->add_option("--out", job.out, "PNG to write")->required();
   add_environment_options(sub, a->env);
   sub->add_option("--view", a->view, "session frame whose camera draws the image (0-based)");
-  sub->add_option("--pose", a->pose, "view file: {format s2r.view, intrinsics, world_from_camera}");
-  sub->add_option("--scale", a->scale, "image size relative to the camera's")->capture_default_str();
+  sub->add_option("--pose", job.view_file, "view file: {format s2r.view, intrinsics, world_from_camera}");
+  sub->add_option("--scale", job.scale, "image size relative to the camera's")->capture_default_str();
   sub->add_option("--report", a->report, "report path (default: beside --out)");
   add_draw_options(sub, a->draw);
-  add_source_options(sub, a->source);
+  add_source_options(sub, job.source);
   sub->callback([a, &chosen] { chosen = a; });
 }
 
@@ -99,24 +100,27 @@ void add_eval(CLI::App& app, Chosen& chosen) {
       "baselines (billboards without depth clipping, the textured patch mesh and fused surface). Writes OUT/frame_NNNN.png\n"
       "(photo | billboards | no clip | patch mesh | surface mesh), OUT/eval.csv and OUT/report.json.");
   auto a = std::make_shared<EvalArgs>();
-  sub->add_option("model", a->model, "model folder (s2r reconstruct)")->required();
+  EvalJob& job = a->job;
+  sub->add_option("model", job.model, "model folder (s2r reconstruct)")->required();
   sub->add_option("--holdout", a->holdout, "I,J,...: frames to render and compare")->required();
   sub->add_option("--out", a->out, "output folder (default MODEL/eval)");
-  sub->add_flag("--no-baselines", a->no_baselines, "billboards only");
+  sub->add_flag_callback("--no-baselines", [&job] { job.baselines = false; }, "billboards only");
   add_draw_options(sub, a->draw);
-  add_source_options(sub, a->source);
+  add_source_options(sub, job.source);
   sub->callback([a, &chosen] { chosen = a; });
 }
 
 void add_view(CLI::App& app, Chosen& chosen) {
   auto* sub = app.add_subcommand("view", "Interactive viewer (GLFW window; the keys are listed on start and by H)");
   auto a = std::make_shared<ViewArgs>();
-  sub->add_option("model", a->model, "model folder (s2r reconstruct)")->required();
-  sub->add_option("--width", a->width, "window width")->capture_default_str();
-  sub->add_option("--height", a->height, "window height")->capture_default_str();
-  sub->add_option("--pose", a->pose, "start at this view file instead of the orbit's default");
-  sub->add_option("--frames", a->frames, "draw this many frames and quit (0 = until closed); for tests and timing");
-  sub->add_option("--screenshot", a->screenshot, "PNG written after the last frame");
+  ViewerOptions& o = a->options;
+  sub->add_option("model", o.model, "model folder (s2r reconstruct)")->required();
+  sub->add_option("--width", o.width, "window width")->capture_default_str();
+  sub->add_option("--height", o.height, "window height")->capture_default_str();
+  sub->add_option("--pose", o.start_view, "start at this view file instead of the orbit's default");
+  sub->add_option("--frames", o.frames, "draw this many frames and quit (0 = until closed); for tests and timing")
+      ->capture_default_str();
+  sub->add_option("--screenshot", o.screenshot, "PNG written after the last frame");
   add_draw_options(sub, a->draw);
   add_environment_options(sub, a->env);
   sub->callback([a, &chosen] { chosen = a; });

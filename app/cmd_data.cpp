@@ -72,8 +72,12 @@ Calibration existing_calibration(const std::string& path) {
 }  // namespace
 
 int run(const SynthArgs& a) {
+  static const FlagNames flags = {{"views", "--views"}, {"width", "--width"}, {"height", "--height"}, {"spp", "--spp"},
+                                  {"depth_noise_k", "--depth-noise"}, {"dropout", "--dropout"},
+                                  {"grazing_deg", "--grazing-deg"}, {"exposure", "--exposure"},
+                                  {"color_noise", "--color-noise"}};
   auto r = synth_session(a.options, a.out);
-  if (!r) return error(r.error().message);
+  if (!r) return error(in_flag_terms(r.error(), flags));
   return finish(*r, report_path(a.report, fs::path(a.out) / "report.json"));
 }
 
@@ -84,23 +88,18 @@ int run(const ImportArgs& a) {
 }
 
 int run(const CaptureArgs& a) {
-  if (!a.sim && a.replay.empty() && a.camera.empty())
+  if (!a.use_sim && a.replay.empty() && a.camera.empty())
     return error("choose the devices: --sim, --replay DIR, or --camera DEV --turntable TTY");
   // From here on SIGINT/SIGTERM end the session cleanly between frames.
   struct sigaction sa {};
   sa.sa_handler = on_stop_signal;
   sigaction(SIGINT, &sa, nullptr);
   sigaction(SIGTERM, &sa, nullptr);
-  DeviceOptions d;
-  d.width = a.width;
-  d.height = a.height;
+  DeviceOptions d = a.devices;
   d.settle = std::chrono::milliseconds(a.settle_ms);
-  d.record_dir = a.record;
   Result<std::unique_ptr<CaptureRig>> rig = fail("no devices");
-  if (a.sim) {
-    SimOptions so;
-    so.scene = a.scene;
-    so.seed = a.seed;
+  if (a.use_sim) {
+    SimOptions so = a.sim;
     for (const auto& f : a.faults)
       if (auto st = apply_sim_fault(f, so); !st) return error(st.error().message);
     rig = make_sim_capture(so, d);
@@ -110,20 +109,18 @@ int run(const CaptureArgs& a) {
     rig = make_hardware_capture(a.camera, a.depth, a.turntable, d);
   }
   if (!rig) return error(rig.error().message);
-  CaptureOptions o;
-  o.out = a.out;
-  o.steps = a.steps;
-  o.resume = a.resume;
-  o.flush_frames = a.flush >= 0 ? a.flush : (a.sim || !a.replay.empty() ? 0 : 2);
+  CaptureOptions o = a.capture;
+  if (a.flush >= 0) o.flush_frames = a.flush;
+  else if (a.use_sim || !a.replay.empty()) o.flush_frames = 0;
   auto r = run_capture((*rig)->devices, o, &g_stop);
   if (!r) {
-    std::fprintf(stderr, "s2r: error: %s\n", r.error().message.c_str());
-    if (fs::exists(fs::path(a.out) / "session.json"))
+    std::fprintf(stderr, "s2r: error: %s\n", in_flag_terms(r.error(), {{"steps", "--steps"}}).c_str());
+    if (fs::exists(o.out / "session.json"))
       std::fprintf(stderr, "s2r: the session keeps every complete frame; continue with: s2r capture --out %s --resume ...\n",
-                   a.out.c_str());
+                   o.out.c_str());
     return g_stop ? 130 : 1;
   }
-  return finish(*r, report_path(a.report, fs::path(a.out) / "report.json"));
+  return finish(*r, report_path(a.report, o.out / "report.json"));
 }
 
 int run(const IntrinsicsArgs& a) {
@@ -131,10 +128,8 @@ int run(const IntrinsicsArgs& a) {
   if (!board) return error(board.error().message);
   const auto files = expand_glob(a.images);
   if (files.empty()) return error("no file matches '" + a.images + "'");
-  IntrinsicsOptions o;
+  IntrinsicsOptions o = a.options;
   o.board = *board;
-  o.reject_factor = a.reject;
-  o.fix_k3 = a.fix_k3;
   auto r = calibrate_intrinsics_from_files(files, o);
   if (!r) return error(r.error().message);
   for (const auto& v : r->views)

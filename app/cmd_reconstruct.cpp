@@ -30,7 +30,8 @@ int run(const RegisterArgs& a) {
   static const FlagNames flags = {{"session", "session"},        {"stanford_conf", "--stanford"},
                                   {"out", "--out"},              {"table_sigma_deg", "--table-sigma-deg"},
                                   {"threads", "--threads"},      {"voxel_m", "--voxels"},
-                                  {"perturb", "--perturb"}};
+                                  {"perturb", "--perturb"},      {"fixed_name", "--fixed"},
+                                  {"mode", "--mode"}};
   RegisterJob job = a.job;
   job.options.mode = a.mode == "turntable" ? RegistrationMode::kTurntable : RegistrationMode::kFree;
   if (!a.perturb.empty()) {

@@ -91,61 +91,47 @@ Result<std::optional<EnvironmentSetup>> environment_setup(const EnvArgs& a) {
   return std::optional<EnvironmentSetup>(std::move(e));
 }
 
-fs::path beside(const std::string& out) { return fs::path(out).parent_path() / "report.json"; }
+fs::path beside(const fs::path& out) { return out.parent_path() / "report.json"; }
 
 }  // namespace
 
 int run(const PreviewArgs& a) {
   auto r = preview_to_file(a.session, a.options, a.out);
-  if (!r) return error(r.error().message);
+  if (!r) return error(in_flag_terms(r.error(), {{"view", "--view"}}));
   return finish(*r, a.report.empty() ? beside(a.out) : fs::path(a.report));
 }
 
 int run(const RenderArgs& a) {
-  RenderJob job;
-  job.model = a.model;
-  job.out = a.out;
+  RenderJob job = a.job;
   if (a.view >= 0) job.view = a.view;
-  job.view_file = a.pose;
   if (!job.view && job.view_file.empty()) return error("give --view I or --pose FILE");
-  job.source = a.source;
   auto draw = draw_options(a.draw);
   if (!draw) return error(draw.error().message);
   job.draw = *draw;
-  job.scale = a.scale;
   auto env = environment_setup(a.env);
   if (!env) return error(env.error().message);
   job.environment = *env;
   auto r = run_render_job(job);
-  if (!r) return error(r.error().message);
-  return finish(*r, a.report.empty() ? beside(a.out) : fs::path(a.report));
+  if (!r) return error(in_flag_terms(r.error(), {{"scale", "--scale"}}));
+  return finish(*r, a.report.empty() ? beside(job.out) : fs::path(a.report));
 }
 
 int run(const EvalArgs& a) {
-  EvalJob job;
-  job.model = a.model;
-  job.source = a.source;
+  EvalJob job = a.job;
   auto frames = frame_list(a.holdout, "--holdout");
   if (!frames) return error(frames.error().message);
   job.frames = *frames;
-  job.out = a.out.empty() ? fs::path(a.model) / "eval" : fs::path(a.out);
+  job.out = a.out.empty() ? job.model / "eval" : fs::path(a.out);
   auto draw = draw_options(a.draw);
   if (!draw) return error(draw.error().message);
   job.draw = *draw;
-  job.baselines = !a.no_baselines;
   auto r = run_eval_job(job);
-  if (!r) return error(r.error().message);
+  if (!r) return error(in_flag_terms(r.error(), {{"frames", "--holdout"}, {"session", "--session"}}));
   return finish(*r, job.out / "report.json");
 }
 
 int run(const ViewArgs& a) {
-  ViewerOptions o;
-  o.model = a.model;
-  o.width = a.width;
-  o.height = a.height;
-  o.frames = a.frames;
-  o.screenshot = a.screenshot;
-  o.start_view = a.pose;
+  ViewerOptions o = a.options;
   auto draw = draw_options(a.draw);
   if (!draw) return error(draw.error().message);
   o.draw = *draw;
@@ -172,8 +158,12 @@ int run(const RaytraceArgs& a) {
     job.gaze = vector3(a.gaze);
     if (!job.gaze) return error("--gaze: expected x,y,z or forward|down|right|up, got '" + a.gaze + "'");
   }
+  static const FlagNames flags = {{"out", "--out"},       {"size", "--size"},     {"reflect_max", "--reflect-max"},
+                                  {"n_min", "--n-min"},   {"levels", "--levels"}, {"eye", "--eye"},
+                                  {"gaze", "--gaze"},     {"model", "--model"},   {"layout", "--layout"},
+                                  {"scene", "--scene"}};
   auto r = run_raytrace_job(job);
-  if (!r) return error(r.error().message);
+  if (!r) return error(in_flag_terms(r.error(), flags));
   return finish(*r, fs::path(a.out) / "report.json");
 }
 

@@ -11,7 +11,7 @@ namespace fs = std::filesystem;
 
 Result<Report> run_capture(CaptureDevices& dev, const CaptureOptions& o, const std::atomic<bool>* stop) {
   Stopwatch clock;
-  if (o.steps < 1 || o.steps > 3600) return fail("--steps must be in 1..3600");
+  if (o.steps < 1 || o.steps > 3600) return fail(ErrorCode::invalid, "steps: must be in 1..3600");
   if (!dev.color || !dev.table) return fail("a capture needs a colour camera and a turntable");
   Report rep;
   rep.stage = "capture";

@@ -72,14 +72,16 @@ RtMaterial lambert(float ambient, float direct) {
 }  // namespace
 
 Status SynthOptions::validate() const {
-  if (views < 1 || views > 3600) return fail("--views must be in 1..3600");
-  if (width < 16 || height < 16 || width > 8192 || height > 8192)
-    return fail("image size must be within 16..8192 pixels");
-  if (spp != 1 && spp != 4) return fail("--spp must be 1 or 4");
-  if (!(depth_noise_k >= 0) || !(depth_unit_m > 0) || !(dropout >= 0 && dropout <= 1))
-    return fail("depth noise must be >= 0, unit > 0, dropout in [0, 1]");
-  if (!(grazing_deg > 0 && grazing_deg <= 90)) return fail("grazing angle must be in (0, 90]");
-  if (!(exposure > 0 && exposure < 1000) || !(color_noise >= 0)) return fail("exposure must be in (0, 1000), colour noise >= 0");
+  if (views < 1 || views > 3600) return fail(ErrorCode::invalid, "views: must be in 1..3600");
+  if (width < 16 || width > 8192) return fail(ErrorCode::invalid, "width: must be within 16..8192 pixels");
+  if (height < 16 || height > 8192) return fail(ErrorCode::invalid, "height: must be within 16..8192 pixels");
+  if (spp != 1 && spp != 4) return fail(ErrorCode::invalid, "spp: must be 1 or 4");
+  if (!(depth_noise_k >= 0)) return fail(ErrorCode::invalid, "depth_noise_k: must be >= 0");
+  if (!(depth_unit_m > 0)) return fail(ErrorCode::invalid, "depth_unit_m: must be > 0");
+  if (!(dropout >= 0 && dropout <= 1)) return fail(ErrorCode::invalid, "dropout: must be in [0, 1]");
+  if (!(grazing_deg > 0 && grazing_deg <= 90)) return fail(ErrorCode::invalid, "grazing_deg: must be in (0, 90]");
+  if (!(exposure > 0 && exposure < 1000)) return fail(ErrorCode::invalid, "exposure: must be in (0, 1000)");
+  if (!(color_noise >= 0)) return fail(ErrorCode::invalid, "color_noise: must be >= 0");
   return {};
 }
 

@@ -28,77 +28,151 @@ Status RegisterJob::validate() const {
   return {};
 }
 
+namespace {
+
+// The views as loaded, with the ground truth of a synthetic session.
+struct LoadedViews {
+  RegistrationInput in;
+  std::optional<GroundTruth> truth;
+  std::string source;
+};
+
+Result<LoadedViews> load_views(const RegisterJob& job) {
+  std::optional<Calibration> cal;
+  if (!job.calibration.empty()) {
+    auto c = load_calibration(job.calibration);
+    if (!c) return std::unexpected(c.error());
+    cal = *c;
+  }
+  LoadedViews lv;
+  Result<RegistrationInput> in = fail("no input");
+  if (!job.stanford_conf.empty()) {
+    in = load_stanford_views(job.stanford_conf, {});
+    lv.source = job.stanford_conf.string();
+  } else {
+    auto s = load_session(job.session);
+    if (!s) return std::unexpected(s.error());
+    in = load_session_views(*s, cal ? &*cal : nullptr, {});
+    lv.source = job.session.string();
+    if (auto t = load_ground_truth(job.session); t) lv.truth = std::move(*t);
+  }
+  if (!in) return std::unexpected(in.error());
+  lv.in = std::move(*in);
+  return lv;
+}
+
+// The options with what the input decides: the fixed view by name, the
+// turntable prior of a calibrated axis.
+Result<RegistrationOptions> input_options(const RegisterJob& job, const RegistrationInput& in) {
+  RegistrationOptions o = job.options;
+  if (!job.fixed_name.empty()) {
+    o.fixed_view = -1;
+    for (size_t i = 0; i < in.views.size(); ++i)
+      if (in.views[i].name == job.fixed_name) o.fixed_view = static_cast<int>(i);
+    if (o.fixed_view < 0) return fail(ErrorCode::invalid, "fixed_name: '" + job.fixed_name + "' is not one of the views");
+  }
+  if (o.mode == RegistrationMode::kTurntable && !in.turntable)
+    return fail(ErrorCode::invalid, "mode: turntable needs a calibration with a turntable axis");
+  if (in.turntable && !o.turntable) {
+    o.turntable = in.turntable;
+    o.turntable->sigma_angle_deg = job.table_sigma_deg;
+  }
+  return o;
+}
+
+// The poses to measure against: ground truth of a synthetic session, else
+// the input's own poses when the start was perturbed; none otherwise.
+std::optional<std::vector<Eigen::Isometry3d>> reference_poses(const RegisterJob& job, const LoadedViews& lv,
+                                                              Report& report) {
+  if (lv.truth && lv.truth->world_from_camera.size() >= lv.in.frames.size()) {
+    std::vector<Eigen::Isometry3d> ref;
+    for (int f : lv.in.frames) ref.push_back(lv.truth->world_from_camera.at(static_cast<size_t>(f)));
+    report.params["reference"] = "ground truth (synthetic rig)";
+    return ref;
+  }
+  if (job.perturb_deg || job.perturb_m) {
+    report.params["reference"] = "the input's poses (before perturbation)";
+    return lv.in.given;
+  }
+  return std::nullopt;
+}
+
+// poses.json, the .conf of Stanford input, and the per-view and per-pair tables.
+Status write_results(const RegisterJob& job, const LoadedViews& lv, const std::vector<RegistrationView>& views,
+                     const RegistrationResult& r, const std::optional<PoseError>& view_error, Report& report) {
+  std::error_code ec;
+  fs::create_directories(job.out, ec);
+  if (ec) return fail("cannot create '" + job.out.string() + "': " + ec.message());
+  Poses poses;
+  poses.session = lv.source;
+  poses.rms_m = r.rms_m;
+  for (size_t i = 0; i < views.size(); ++i) {
+    FramePose fp;
+    fp.index = lv.in.frames[i];
+    fp.world_from_camera = r.poses[i];
+    fp.residual_rms_m = r.views[i].rms_m;
+    fp.flagged = r.views[i].flagged;
+    fp.note = r.views[i].note;
+    poses.frames.push_back(fp);
+  }
+  if (auto st = save_poses(job.out / "poses.json", poses); !st) return st;
+  if (lv.in.conf) {
+    StanfordConf conf = *lv.in.conf;
+    for (size_t i = 0; i < conf.scans.size() && i < r.poses.size(); ++i) conf.scans[i].world_from_scan = r.poses[i];
+    const fs::path conf_out = job.out / job.stanford_conf.filename();
+    if (auto st = write_stanford_conf(conf_out, conf); !st) return st;
+    report.params["conf"] = conf_out.string();
+  }
+  SweepTable vt;
+  vt.columns = {"view", "rms_mm", "overlap", "pairs", "flagged", "flipped", "rot_err_deg", "trans_err_mm"};
+  for (size_t i = 0; i < views.size(); ++i) {
+    const auto& v = r.views[i];
+    vt.row_labels.push_back(views[i].name);
+    vt.rows.push_back({double(i), 1e3 * v.rms_m, v.overlap, double(v.pairs), double(v.flagged), double(v.flipped),
+                       view_error ? view_error->rotation_deg[i] : -1,
+                       view_error ? 1e3 * view_error->translation_m[i] : -1});
+  }
+  if (auto st = vt.write_csv(job.out / "views.csv"); !st) return st;
+  SweepTable pt;
+  pt.columns = {"a", "b", "overlap", "rms_mm", "correspondences"};
+  for (const auto& p : r.pairs) pt.rows.push_back({double(p.a), double(p.b), p.overlap, 1e3 * p.rms_m, double(p.correspondences)});
+  return pt.write_csv(job.out / "pairs.csv");
+}
+
+}  // namespace
+
+// Load the views, resolve the options, perturb the start, register (each
+// round's error against the reference into the convergence table), write.
 Result<Report> run_register_job(const RegisterJob& job) {
   Stopwatch clock;
   Report report;
   report.stage = "register";
   if (auto st = job.validate(); !st) return std::unexpected(st.error());
-  RegistrationOptions o = job.options;
-  // Load.
-  Result<RegistrationInput> in = fail("no input");
-  std::optional<GroundTruth> truth;
-  std::string source;
-  Calibration cal;
-  bool have_cal = false;
-  if (!job.calibration.empty()) {
-    auto c = load_calibration(job.calibration);
-    if (!c) return std::unexpected(c.error());
-    cal = *c;
-    have_cal = true;
-  }
-  if (!job.stanford_conf.empty()) {
-    in = load_stanford_views(job.stanford_conf, {});
-    source = job.stanford_conf.string();
-  } else {
-    auto s = load_session(job.session);
-    if (!s) return std::unexpected(s.error());
-    in = load_session_views(*s, have_cal ? &cal : nullptr, {});
-    source = job.session.string();
-    if (auto t = load_ground_truth(job.session); t) truth = std::move(*t);
-  }
-  if (!in) return std::unexpected(in.error());
+  auto lv = load_views(job);
+  if (!lv) return std::unexpected(lv.error());
+  RegistrationInput& in = lv->in;
   report.seconds = clock.seconds();
-  report.params["input"] = source;
-  report.counts["points_in"] = double(in->prep.input);
-  report.counts["points_kept"] = double(in->prep.kept);
-  report.skipped["outlier_points"] = double(in->prep.outliers);
-  report.skipped["points_without_normal"] = double(in->prep.no_normal);
-  for (const auto& n : in->notes) report.warnings.push_back(n);
-  if (!job.fixed_name.empty()) {
-    o.fixed_view = -1;
-    for (size_t i = 0; i < in->views.size(); ++i)
-      if (in->views[i].name == job.fixed_name) o.fixed_view = static_cast<int>(i);
-    if (o.fixed_view < 0) return fail("--fixed '" + job.fixed_name + "' is not one of the views");
-  }
-  if (o.mode == RegistrationMode::kTurntable && !in->turntable)
-    return fail("--mode turntable needs a calibration with a turntable axis (--calibration)");
-  if (in->turntable && !o.turntable) {
-    o.turntable = in->turntable;
-    o.turntable->sigma_angle_deg = job.table_sigma_deg;
-  }
-  // Start.
-  const Eigen::Vector3d centre = points_centre(in->views, in->given);
-  std::vector<Eigen::Isometry3d> start = in->given;
+  report.params["input"] = lv->source;
+  report.counts["points_in"] = double(in.prep.input);
+  report.counts["points_kept"] = double(in.prep.kept);
+  report.skipped["outlier_points"] = double(in.prep.outliers);
+  report.skipped["points_without_normal"] = double(in.prep.no_normal);
+  for (const auto& n : in.notes) report.warnings.push_back(n);
+  auto options = input_options(job, in);
+  if (!options) return std::unexpected(options.error());
+  RegistrationOptions& o = *options;
+
+  const Eigen::Vector3d centre = points_centre(in.views, in.given);
+  std::vector<Eigen::Isometry3d> start = in.given;
   if (job.perturb_deg || job.perturb_m) {
-    start = perturb_poses(in->given, job.perturb_deg.value_or(0), job.perturb_m.value_or(0), job.seed, centre,
+    start = perturb_poses(in.given, job.perturb_deg.value_or(0), job.perturb_m.value_or(0), job.seed, centre,
                           o.fixed_view);
     report.params["perturb"] = fmt::format("{} deg, {} m, seed {}", job.perturb_deg.value_or(0),
                                            job.perturb_m.value_or(0), job.seed);
   }
-  std::vector<RegistrationView> views = std::move(in->views);
+  std::vector<RegistrationView> views = std::move(in.views);
   for (size_t i = 0; i < views.size(); ++i) views[i].initial = start[i];
-  // The reference poses to measure against: ground truth of a synthetic
-  // session, else the input's own poses when the start was perturbed.
-  std::optional<std::vector<Eigen::Isometry3d>> reference;
-  if (truth && truth->world_from_camera.size() >= in->frames.size()) {
-    std::vector<Eigen::Isometry3d> ref;
-    for (int f : in->frames) ref.push_back(truth->world_from_camera.at(static_cast<size_t>(f)));
-    reference = ref;
-    report.params["reference"] = "ground truth (synthetic rig)";
-  } else if (job.perturb_deg || job.perturb_m) {
-    reference = in->given;
-    report.params["reference"] = "the input's poses (before perturbation)";
-  }
+  const std::optional<std::vector<Eigen::Isometry3d>> reference = reference_poses(job, *lv, report);
   SweepTable table;
   table.columns = {"round", "level", "voxel_m", "iterations", "seconds", "rms_mm", "max_rot_err_deg",
                    "max_trans_err_mm"};
@@ -128,45 +202,8 @@ Result<Report> run_register_job(const RegisterJob& job) {
     report.errors["max_translation_m"] = e.max_translation_m;
     view_error = e;
   }
-  // Write.
-  std::error_code ec;
-  fs::create_directories(job.out, ec);
-  if (ec) return fail("cannot create '" + job.out.string() + "': " + ec.message());
-  Poses poses;
-  poses.session = source;
-  poses.rms_m = r->rms_m;
-  for (size_t i = 0; i < views.size(); ++i) {
-    FramePose fp;
-    fp.index = in->frames[i];
-    fp.world_from_camera = r->poses[i];
-    fp.residual_rms_m = r->views[i].rms_m;
-    fp.flagged = r->views[i].flagged;
-    fp.note = r->views[i].note;
-    poses.frames.push_back(fp);
-  }
-  if (auto st = save_poses(job.out / "poses.json", poses); !st) return std::unexpected(st.error());
-  if (in->conf) {
-    StanfordConf conf = *in->conf;
-    for (size_t i = 0; i < conf.scans.size() && i < r->poses.size(); ++i) conf.scans[i].world_from_scan = r->poses[i];
-    const fs::path conf_out = job.out / job.stanford_conf.filename();
-    if (auto st = write_stanford_conf(conf_out, conf); !st) return std::unexpected(st.error());
-    report.params["conf"] = conf_out.string();
-  }
+  if (auto st = write_results(job, *lv, views, *r, view_error, report); !st) return std::unexpected(st.error());
   if (auto st = table.write_csv(job.out / "convergence.csv"); !st) return std::unexpected(st.error());
-  SweepTable vt;
-  vt.columns = {"view", "rms_mm", "overlap", "pairs", "flagged", "flipped", "rot_err_deg", "trans_err_mm"};
-  for (size_t i = 0; i < views.size(); ++i) {
-    const auto& v = r->views[i];
-    vt.row_labels.push_back(views[i].name);
-    vt.rows.push_back({double(i), 1e3 * v.rms_m, v.overlap, double(v.pairs), double(v.flagged), double(v.flipped),
-                       view_error ? view_error->rotation_deg[i] : -1,
-                       view_error ? 1e3 * view_error->translation_m[i] : -1});
-  }
-  if (auto st = vt.write_csv(job.out / "views.csv"); !st) return std::unexpected(st.error());
-  SweepTable pt;
-  pt.columns = {"a", "b", "overlap", "rms_mm", "correspondences"};
-  for (const auto& p : r->pairs) pt.rows.push_back({double(p.a), double(p.b), p.overlap, 1e3 * p.rms_m, double(p.correspondences)});
-  if (auto st = pt.write_csv(job.out / "pairs.csv"); !st) return std::unexpected(st.error());
   PlotSpec spec{"registration: error against run time", "seconds", "RMS point-to-plane (mm) / pose error",
                 "seconds", {"rms_mm"}};
   if (reference) spec.y = {"rms_mm", "max_rot_err_deg", "max_trans_err_mm"};

@@ -153,14 +153,20 @@ Result<Renderer> open_model(const fs::path& dir) {
 
 }  // namespace
 
+Status RenderJob::validate() const {
+  if (!(scale > 0 && scale <= 8)) return fail(ErrorCode::invalid, "scale: must be in (0, 8]");
+  if (!view && view_file.empty()) return fail(ErrorCode::invalid, "view: give a session frame or a view file");
+  return {};
+}
+
 Result<Report> run_render_job(const RenderJob& job) {
   Stopwatch clock;
-  if (!(job.scale > 0 && job.scale <= 8)) return fail("--scale must be in (0, 8]");
+  if (auto st = job.validate(); !st) return std::unexpected(st.error());
   auto r = open_model(job.model);
   if (!r) return std::unexpected(r.error());
   Result<ViewCamera> view = !job.view_file.empty() ? load_view_file(job.view_file)
                             : job.view              ? frame_view(r->model, job.source, *job.view)
-                                                    : Result<ViewCamera>(fail("give --view I or --pose FILE"));
+                                                    : Result<ViewCamera>(fail("no view (validate() refuses this)"));
   if (!view) return std::unexpected(view.error());
   const ViewCamera v = scaled(*view, job.scale);
   auto fb = Framebuffer::create(v.K.width, v.K.height);
@@ -193,10 +199,163 @@ Result<Report> run_render_job(const RenderJob& job) {
   return rep;
 }
 
+namespace {
+
+// A way of drawing the model that eval compares (billboards, and the baselines).
+struct EvalMethod {
+  std::string name;
+  DrawOptions draw;
+};
+
+std::vector<EvalMethod> eval_methods(const EvalJob& job, const ModelRenderer& renderer) {
+  std::vector<EvalMethod> methods{{"billboards", job.draw}};
+  methods[0].draw.mesh_reliability = 0;
+  if (job.draw.mesh_reliability > 0 && renderer.has_mesh()) methods.push_back({"hybrid", job.draw});
+  if (job.baselines) {
+    EvalMethod noclip{"no_clip", job.draw};
+    noclip.draw.depth_clip = false;
+    methods.push_back(noclip);
+    for (auto [name, g] : {std::pair{"mesh", DrawOptions::Geometry::kMesh}, std::pair{"surface", DrawOptions::Geometry::kSurface}}) {
+      if (!renderer.has_mesh(g)) continue;
+      EvalMethod m{name, job.draw};
+      m.draw.geometry = g;
+      methods.push_back(m);
+    }
+  }
+  return methods;
+}
+
+// A frame's photo, the object's pixels in it and the backdrop's colour.
+struct EvalPhoto {
+  ImageU8 photo, object;
+  std::string mask_source = "whole_image";
+  float background[3] = {0, 0, 0};
+};
+
+Result<EvalPhoto> eval_photo(const Session& s, int frame, const Intrinsics& K) {
+  auto photo = load_color(s, s.frames[size_t(frame)]);
+  if (!photo) return std::unexpected(photo.error());
+  if (photo->width != K.width || photo->height != K.height)
+    return fail(fmt::format("frame {}: photo is {}x{}, its camera {}x{}", frame, photo->width, photo->height, K.width, K.height));
+  EvalPhoto e;
+  e.photo = std::move(*photo);
+  e.object = ImageU8(e.photo.width, e.photo.height, 1, 255);
+  const fs::path truth = s.root / "ground_truth" / "depth_color" / fmt::format("{:04d}.exr", frame);
+  if (s.layout == Layout::kObjectCentre) {
+    const Backdrop b = border_backdrop(e.photo);
+    for (int c = 0; c < 3 && c < int(b.color.size()); ++c) e.background[c] = float(b.color[size_t(c)]) / 255.f;
+  }
+  if (fs::exists(truth)) {
+    auto d = read_image_float(truth);
+    if (!d) return std::unexpected(d.error());
+    for (size_t i = 0; i < e.object.pixels() && i < d->pixels(); ++i)
+      e.object.data[i] = d->data[i * size_t(d->channels)] > 0 ? 255 : 0;
+    e.mask_source = "ground_truth";
+  } else if (s.layout == Layout::kObjectCentre) {
+    if (auto m = backdrop_mask(e.photo)) e.object = std::move(*m), e.mask_source = "backdrop";
+  }
+  return e;
+}
+
+// Every method's figures over the frames, for the means.
+struct EvalSeries {
+  std::map<std::string, std::vector<double>> psnr, ssim, frame_ms, coverage, psnr_held, psnr_input;
+};
+
+// One frame drawn by every method and compared with its photo over the
+// object's pixels joined with every drawn pixel: a row of eval.csv, the
+// strip PNG (photo | methods), the figures into `series`.
+Status eval_frame(const EvalJob& job, const Renderer& m, const ViewCamera& view, int frame, bool held,
+                  std::vector<EvalMethod>& methods, const EvalPhoto& e, EvalSeries& series, SweepTable& table,
+                  Report& rep) {
+  std::vector<ImageU8> drawn;
+  std::vector<DrawStats> stats;
+  auto fb = Framebuffer::create(view.K.width, view.K.height);
+  if (!fb) return std::unexpected(fb.error());
+  for (auto& method : methods) {
+    std::copy(e.background, e.background + 3, method.draw.background);
+    auto st = m.renderer->draw(view, method.draw, *fb);
+    if (!st) return std::unexpected(st.error());
+    drawn.push_back(fb->read_rgba());
+    stats.push_back(*st);
+  }
+  ImageU8 mask = e.object;
+  for (const auto& d : drawn)
+    for (size_t i = 0; i < mask.pixels(); ++i)
+      if (d.data[i * 4 + 3]) mask.data[i] = 255;
+  size_t mask_px = 0, object_px = 0;
+  for (size_t i = 0; i < mask.pixels(); ++i) mask_px += mask.data[i] != 0, object_px += e.object.data[i] != 0;
+  std::vector<double> row{double(frame), held ? 1.0 : 0.0, double(mask_px)};
+  ImageU8 strip(e.photo.width * int(1 + methods.size()), e.photo.height, 3);
+  auto paste = [&](const ImageU8& img, int slot) {
+    for (int y = 0; y < img.height; ++y)
+      for (int x = 0; x < img.width; ++x)
+        for (int c = 0; c < 3; ++c) strip.at(slot * img.width + x, y, c) = img.at(x, y, c);
+  };
+  paste(e.photo, 0);
+  for (size_t k = 0; k < methods.size(); ++k) {
+    const ImageU8 rgb = rgb_of(drawn[k]);
+    paste(rgb, int(k) + 1);
+    auto p = psnr(rgb, e.photo, &mask);
+    auto q = ssim(rgb, e.photo, &mask);
+    if (!p || !q) return fail(fmt::format("frame {}: {}", frame, (!p ? p.error() : q.error()).message));
+    size_t covered = 0;
+    for (size_t i = 0; i < e.object.pixels(); ++i) covered += e.object.data[i] && drawn[k].data[i * 4 + 3];
+    const double cov = object_px ? double(covered) / double(object_px) : 0.0;
+    const std::string& n = methods[k].name;
+    series.psnr[n].push_back(*p), series.ssim[n].push_back(*q), series.frame_ms[n].push_back(stats[k].frame_ms);
+    series.coverage[n].push_back(cov);
+    (held ? series.psnr_held : series.psnr_input)[n].push_back(*p);
+    rep.errors[fmt::format("psnr_db_{}_frame_{:04d}", n, frame)] = *p;
+    for (double x : {*p, *q, cov, stats[k].frame_ms}) row.push_back(x);
+    if (k == 0) add_selection(rep, stats[k], fmt::format("_frame_{:04d}", frame));
+  }
+  table.rows.push_back(row);
+  return write_image(job.out / fmt::format("frame_{:04d}.png", frame), strip);
+}
+
+// The means over the frames per method, and each baseline's difference.
+void eval_summary(const EvalJob& job, const std::vector<EvalMethod>& methods, EvalSeries& series, Report& rep) {
+  auto mean = [](const std::vector<double>& v) {
+    double s = 0;
+    for (double x : v) s += x;
+    return v.empty() ? 0.0 : s / double(v.size());
+  };
+  for (const auto& m : methods) {
+    const std::string& n = m.name;
+    rep.errors["psnr_db_" + n] = mean(series.psnr[n]);
+    rep.errors["ssim_" + n] = mean(series.ssim[n]);
+    rep.counts["coverage_" + n] = mean(series.coverage[n]);
+    rep.counts["frame_ms_" + n] = mean(series.frame_ms[n]);
+    if (!series.psnr_held[n].empty()) rep.errors["psnr_db_" + n + "_held_out"] = mean(series.psnr_held[n]);
+    if (!series.psnr_input[n].empty()) rep.errors["psnr_db_" + n + "_input_views"] = mean(series.psnr_input[n]);
+  }
+  if (series.psnr.count("hybrid")) {
+    rep.errors["hybrid_over_billboards_db"] = rep.errors["psnr_db_hybrid"] - rep.errors["psnr_db_billboards"];
+    rep.params["mesh_reliability"] = job.draw.mesh_reliability;
+  }
+  if (series.psnr.count("no_clip")) rep.errors["depth_clip_gain_db"] = rep.errors["psnr_db_billboards"] - rep.errors["psnr_db_no_clip"];
+  for (const std::string n : {"mesh", "surface"}) {
+    if (!series.psnr.count(n)) continue;
+    rep.errors["billboards_over_" + n + "_db"] = rep.errors["psnr_db_billboards"] - rep.errors["psnr_db_" + n];
+    if (!series.psnr_held[n].empty())
+      rep.errors["billboards_over_" + n + "_held_out_db"] = mean(series.psnr_held["billboards"]) - mean(series.psnr_held[n]);
+  }
+}
+
+}  // namespace
+
+Status EvalJob::validate() const {
+  if (frames.empty()) return fail(ErrorCode::invalid, "frames: give the frames to evaluate");
+  if (source.session.empty()) return fail(ErrorCode::invalid, "session: is needed, the photos come from it");
+  return {};
+}
+
+// Open the model and the session's cameras; per frame, the photo and every
+// method's drawing compared with it; the means; eval.csv.
 Result<Report> run_eval_job(const EvalJob& job) {
   Stopwatch clock;
-  if (job.frames.empty()) return fail("give the frames to evaluate (--holdout I,J,...)");
-  if (job.source.session.empty()) return fail("--session is needed: the photos come from it");
+  if (auto st = job.validate(); !st) return std::unexpected(st.error());
   auto r = open_model(job.model);
   if (!r) return std::unexpected(r.error());
   auto cameras = SessionCameras::load(job.source);
@@ -208,130 +367,28 @@ Result<Report> run_eval_job(const EvalJob& job) {
   fs::create_directories(job.out, ec);
   if (ec) return fail("cannot create " + job.out.string() + ": " + ec.message());
 
-  struct Method {
-    std::string name;
-    DrawOptions draw;
-  };
-  std::vector<Method> methods{{"billboards", job.draw}};
-  methods[0].draw.mesh_reliability = 0;
-  if (job.draw.mesh_reliability > 0 && r->renderer->has_mesh()) methods.push_back({"hybrid", job.draw});
-  if (job.baselines) {
-    Method noclip{"no_clip", job.draw};
-    noclip.draw.depth_clip = false;
-    methods.push_back(noclip);
-    for (auto [name, g] : {std::pair{"mesh", DrawOptions::Geometry::kMesh}, std::pair{"surface", DrawOptions::Geometry::kSurface}}) {
-      if (!r->renderer->has_mesh(g)) continue;
-      Method m{name, job.draw};
-      m.draw.geometry = g;
-      methods.push_back(m);
-    }
-  }
+  std::vector<EvalMethod> methods = eval_methods(job, *r->renderer);
   Report rep;
   rep.stage = "eval";
   SweepTable table;
   table.columns = {"frame", "held_out", "mask_pixels"};
   for (const auto& m : methods)
     for (const char* q : {"psnr_db_", "ssim_", "coverage_", "frame_ms_"}) table.columns.push_back(q + m.name);
-  std::map<std::string, std::vector<double>> psnr_of, ssim_v, frame_ms, coverage;
-  std::map<std::string, std::vector<double>> psnr_held, psnr_input;
+  EvalSeries series;
   Progress progress("eval", job.frames.size());
   for (int frame : job.frames) {
     auto view = cameras->view(frame);
     if (!view) return std::unexpected(view.error());
-    const bool held = !in_model.count(frame);
-    auto photo = load_color(s, s.frames[size_t(frame)]);
+    auto photo = eval_photo(s, frame, view->K);
     if (!photo) return std::unexpected(photo.error());
-    if (photo->width != view->K.width || photo->height != view->K.height)
-      return fail(fmt::format("frame {}: photo is {}x{}, its camera {}x{}", frame, photo->width, photo->height, view->K.width, view->K.height));
-    // The object's pixels and the background colour.
-    ImageU8 object(photo->width, photo->height, 1, 255);
-    std::string mask_source = "whole_image";
-    float bg[3] = {0, 0, 0};
-    const fs::path truth = s.root / "ground_truth" / "depth_color" / fmt::format("{:04d}.exr", frame);
-    if (s.layout == Layout::kObjectCentre) {
-      const Backdrop b = border_backdrop(*photo);
-      for (int c = 0; c < 3 && c < int(b.color.size()); ++c) bg[c] = float(b.color[size_t(c)]) / 255.f;
-    }
-    if (fs::exists(truth)) {
-      auto d = read_image_float(truth);
-      if (!d) return std::unexpected(d.error());
-      for (size_t i = 0; i < object.pixels() && i < d->pixels(); ++i) object.data[i] = d->data[i * size_t(d->channels)] > 0 ? 255 : 0;
-      mask_source = "ground_truth";
-    } else if (s.layout == Layout::kObjectCentre) {
-      if (auto m = backdrop_mask(*photo)) object = std::move(*m), mask_source = "backdrop";
-    }
-    rep.params["mask"] = mask_source;
-    std::vector<ImageU8> drawn;
-    std::vector<DrawStats> stats;
-    auto fb = Framebuffer::create(view->K.width, view->K.height);
-    if (!fb) return std::unexpected(fb.error());
-    for (auto& m : methods) {
-      std::copy(bg, bg + 3, m.draw.background);
-      auto st = r->renderer->draw(*view, m.draw, *fb);
-      if (!st) return std::unexpected(st.error());
-      drawn.push_back(fb->read_rgba());
-      stats.push_back(*st);
-    }
-    ImageU8 mask = object;
-    for (const auto& d : drawn)
-      for (size_t i = 0; i < mask.pixels(); ++i)
-        if (d.data[i * 4 + 3]) mask.data[i] = 255;
-    size_t mask_px = 0, object_px = 0;
-    for (size_t i = 0; i < mask.pixels(); ++i) mask_px += mask.data[i] != 0, object_px += object.data[i] != 0;
-    std::vector<double> row{double(frame), held ? 1.0 : 0.0, double(mask_px)};
-    ImageU8 strip(photo->width * int(1 + methods.size()), photo->height, 3);
-    auto paste = [&](const ImageU8& img, int slot) {
-      for (int y = 0; y < img.height; ++y)
-        for (int x = 0; x < img.width; ++x)
-          for (int c = 0; c < 3; ++c) strip.at(slot * img.width + x, y, c) = img.at(x, y, c);
-    };
-    paste(*photo, 0);
-    for (size_t k = 0; k < methods.size(); ++k) {
-      const ImageU8 rgb = rgb_of(drawn[k]);
-      paste(rgb, int(k) + 1);
-      auto p = psnr(rgb, *photo, &mask);
-      auto q = ssim(rgb, *photo, &mask);
-      if (!p || !q) return fail(fmt::format("frame {}: {}", frame, (!p ? p.error() : q.error()).message));
-      size_t covered = 0;
-      for (size_t i = 0; i < object.pixels(); ++i) covered += object.data[i] && drawn[k].data[i * 4 + 3];
-      const double cov = object_px ? double(covered) / double(object_px) : 0.0;
-      const std::string& n = methods[k].name;
-      psnr_of[n].push_back(*p), ssim_v[n].push_back(*q), frame_ms[n].push_back(stats[k].frame_ms), coverage[n].push_back(cov);
-      (held ? psnr_held : psnr_input)[n].push_back(*p);
-      rep.errors[fmt::format("psnr_db_{}_frame_{:04d}", n, frame)] = *p;
-      for (double x : {*p, *q, cov, stats[k].frame_ms}) row.push_back(x);
-      if (k == 0) add_selection(rep, stats[k], fmt::format("_frame_{:04d}", frame));
-    }
-    table.rows.push_back(row);
-    if (auto w = write_image(job.out / fmt::format("frame_{:04d}.png", frame), strip); !w) return std::unexpected(w.error());
+    rep.params["mask"] = photo->mask_source;
+    const bool held = !in_model.count(frame);
+    if (auto st = eval_frame(job, *r, *view, frame, held, methods, *photo, series, table, rep); !st)
+      return std::unexpected(st.error());
     progress.tick();
   }
   progress.done();
-  auto mean = [](const std::vector<double>& v) {
-    double s = 0;
-    for (double x : v) s += x;
-    return v.empty() ? 0.0 : s / double(v.size());
-  };
-  for (const auto& m : methods) {
-    const std::string& n = m.name;
-    rep.errors["psnr_db_" + n] = mean(psnr_of[n]);
-    rep.errors["ssim_" + n] = mean(ssim_v[n]);
-    rep.counts["coverage_" + n] = mean(coverage[n]);
-    rep.counts["frame_ms_" + n] = mean(frame_ms[n]);
-    if (!psnr_held[n].empty()) rep.errors["psnr_db_" + n + "_held_out"] = mean(psnr_held[n]);
-    if (!psnr_input[n].empty()) rep.errors["psnr_db_" + n + "_input_views"] = mean(psnr_input[n]);
-  }
-  if (psnr_of.count("hybrid")) {
-    rep.errors["hybrid_over_billboards_db"] = rep.errors["psnr_db_hybrid"] - rep.errors["psnr_db_billboards"];
-    rep.params["mesh_reliability"] = job.draw.mesh_reliability;
-  }
-  if (psnr_of.count("no_clip")) rep.errors["depth_clip_gain_db"] = rep.errors["psnr_db_billboards"] - rep.errors["psnr_db_no_clip"];
-  for (const std::string n : {"mesh", "surface"}) {
-    if (!psnr_of.count(n)) continue;
-    rep.errors["billboards_over_" + n + "_db"] = rep.errors["psnr_db_billboards"] - rep.errors["psnr_db_" + n];
-    if (!psnr_held[n].empty())
-      rep.errors["billboards_over_" + n + "_held_out_db"] = mean(psnr_held["billboards"]) - mean(psnr_held[n]);
-  }
+  eval_summary(job, methods, series, rep);
   if (!job.baselines) rep.skipped["baselines_not_asked"] = 1;
   else {
     if (!r->renderer->has_mesh(DrawOptions::Geometry::kMesh)) rep.skipped["mesh_baseline_no_patch_mesh"] = 1;

@@ -62,6 +62,9 @@ struct RenderJob {
   DrawOptions draw;
   double scale = 1;           // image size relative to the view's
   std::optional<EnvironmentSetup> environment;  // backdrop, glossy floor and props
+
+  // The options' own ranges, an error naming the field ("scale: ...").
+  Status validate() const;
 };
 Result<Report> run_render_job(const RenderJob& job);
 
@@ -72,6 +75,9 @@ struct EvalJob {
   std::filesystem::path out;  // folder: per-view strips, eval.csv, report.json
   DrawOptions draw;
   bool baselines = true;      // billboards without clipping and the mesh, in the same run
+
+  // The options' own needs, an error naming the field ("frames: ...").
+  Status validate() const;
 };
 Result<Report> run_eval_job(const EvalJob& job);
 

@@ -206,35 +206,29 @@ ImageU8 level_picture(const ImageF& level) {
   return out;
 }
 
-Result<Vector3d> finite(const Vector3d& v, const char* what) {
-  if (!v.allFinite()) return fail(std::string(what) + " must be finite");
-  return v;
-}
-
 }  // namespace
 
-Result<Report> run_raytrace_job(const RaytraceJob& job) {
-  Stopwatch total;
-  Report rep;
-  rep.stage = "raytrace";
-  if (job.out.empty()) return fail("raytrace: --out is required");
-  if (job.size < 8 || job.size > 8192) return fail("raytrace: --size must be within 8..8192");
-  if (job.reflect_max < 0 || job.reflect_max > 64) return fail("raytrace: --reflect-max must be within 0..64");
-  if (job.n_min < 1 || job.n_min > job.n_max) return fail("raytrace: need 1 <= --n-min <= --n-max");
-  if (job.levels < 1 || job.levels > 32) return fail("raytrace: --levels must be within 1..32");
-  if (job.eye) {
-    if (auto e = finite(*job.eye, "--eye"); !e) return std::unexpected(e.error());
-  }
-  if (job.gaze && (!job.gaze->allFinite() || job.gaze->norm() == 0))
-    return fail("raytrace: --gaze must be a finite, non-zero direction");
-  const bool seed = job.mesh.empty() && job.model.empty();
-  if (!job.mesh.empty() && !job.model.empty()) return fail("raytrace: give --mesh or --model, not both");
-  const std::string layout = job.layout.empty() ? (seed ? "cave" : "view") : job.layout;
-  if (layout != "cave" && layout != "view") return fail("raytrace: --layout must be 'cave' or 'view'");
+Status RaytraceJob::validate() const {
+  if (out.empty()) return fail(ErrorCode::invalid, "out: an output folder is required");
+  if (size < 8 || size > 8192) return fail(ErrorCode::invalid, "size: must be within 8..8192");
+  if (reflect_max < 0 || reflect_max > 64) return fail(ErrorCode::invalid, "reflect_max: must be within 0..64");
+  if (n_min < 1 || n_min > n_max) return fail(ErrorCode::invalid, "n_min: must be within 1..n_max");
+  if (levels < 1 || levels > 32) return fail(ErrorCode::invalid, "levels: must be within 1..32");
+  if (eye && !eye->allFinite()) return fail(ErrorCode::invalid, "eye: must be finite");
+  if (gaze && (!gaze->allFinite() || gaze->norm() == 0))
+    return fail(ErrorCode::invalid, "gaze: must be a finite, non-zero direction");
+  if (!mesh.empty() && !model.empty()) return fail(ErrorCode::invalid, "model: give a mesh or a model, not both");
+  if (!layout.empty() && layout != "cave" && layout != "view") return fail(ErrorCode::invalid, "layout: must be 'cave' or 'view'");
+  if (mesh.empty() && model.empty() && scene.size() != 1) return fail(ErrorCode::invalid, "scene: must be A, B, C or D");
+  return {};
+}
 
+namespace {
+
+// The scene to trace: one of the paper's CAVE scenes, a model's mesh, or a PLY.
+Result<RtScene> raytrace_scene(const RaytraceJob& job, Report& rep) {
   RtScene scene;
-  if (seed) {
-    if (job.scene.size() != 1) return fail("raytrace: --scene must be A, B, C or D");
+  if (job.mesh.empty() && job.model.empty()) {
     const fs::path data = job.data_dir.empty() ? data_dir() : job.data_dir;
     const fs::path ply = data / "stanford_bunny" / "bun_zipper.ply";
     auto bunny = read_ply_mesh(ply);
@@ -246,82 +240,84 @@ Result<Report> run_raytrace_job(const RaytraceJob& job) {
     so.levels = job.levels;
     auto s = seed_scene(*bunny, so);
     if (!s) return std::unexpected(s.error());
-    scene = std::move(*s);
     rep.params["scene"] = std::string(1, so.scene);
-  } else if (!job.model.empty()) {
+    return std::move(*s);
+  }
+  if (!job.model.empty()) {
     auto obj = model_object(job.model, job.surface_mesh, job.n_min, job.levels);
     if (!obj) return std::unexpected(obj.error());
     scene.objects.push_back(std::move(*obj));
     rep.params["model"] = job.model.string();
-  } else {
-    auto mesh = read_ply_mesh(job.mesh);
-    if (!mesh) return std::unexpected(mesh.error());
-    auto rt = lod_mesh(*mesh, std::min(job.n_max, mesh->faces.size()),
-                       std::min(job.n_min, std::min(job.n_max, mesh->faces.size())), job.levels);
-    if (!rt) return std::unexpected(rt.error());
-    RtObject obj;
-    obj.name = job.mesh.filename().string();
-    obj.mesh = std::move(*rt);
-    scene.objects.push_back(std::move(obj));
-    rep.params["mesh"] = job.mesh.string();
+    return scene;
   }
+  auto mesh = read_ply_mesh(job.mesh);
+  if (!mesh) return std::unexpected(mesh.error());
+  auto rt = lod_mesh(*mesh, std::min(job.n_max, mesh->faces.size()),
+                     std::min(job.n_min, std::min(job.n_max, mesh->faces.size())), job.levels);
+  if (!rt) return std::unexpected(rt.error());
+  RtObject obj;
+  obj.name = job.mesh.filename().string();
+  obj.mesh = std::move(*rt);
+  scene.objects.push_back(std::move(obj));
+  rep.params["mesh"] = job.mesh.string();
+  return scene;
+}
 
-  // Where the eye is and what it looks at.
+// Where the eye is, what it looks at, and the screens it sees.
+struct EyePlacement {
   std::vector<Screen> screens;
   Vector3d eye;
+  EyeFrame frame;
+};
+
+// The CAVE's screens around the eye, or one pinhole view of the object (with
+// a lamp above the eye when the scene has none).
+Result<EyePlacement> place_eye(const RaytraceJob& job, const std::string& layout, RtScene& scene) {
+  EyePlacement p;
   Vector3d gaze = job.gaze.value_or(Vector3d(0, 0, -1));
   if (layout == "cave") {
-    eye = job.eye.value_or(cave_default_eye());
-    screens = cave_screens(job.size);
+    p.eye = job.eye.value_or(cave_default_eye());
+    p.screens = cave_screens(job.size);
   } else {
     Eigen::AlignedBox3f box;
     for (const auto& o : scene.objects)
       for (const auto& v : o.mesh.vertices) box.extend((o.world_from_object.cast<float>() * v));
     const Vector3d centre = box.center().cast<double>();
     const double radius = std::max(1e-6, 0.5 * static_cast<double>(box.sizes().norm()));
-    eye = job.eye.value_or(centre + Vector3d(0.35, 0.35, 1.0).normalized() * radius * 2.6);
+    p.eye = job.eye.value_or(centre + Vector3d(0.35, 0.35, 1.0).normalized() * radius * 2.6);
     // The view looks along the gaze when one is given, else at the object.
-    const Vector3d forward = job.gaze ? job.gaze->normalized() : Vector3d((centre - eye).normalized());
+    const Vector3d forward = job.gaze ? job.gaze->normalized() : Vector3d((centre - p.eye).normalized());
     if (!job.gaze) gaze = forward;
-    screens = {Screen::pinhole(eye, forward, Vector3d::UnitY(), 45, job.size, job.size * 3 / 4)};
-    if (scene.lights.empty()) scene.lights.push_back({eye + Vector3d(0, radius * 2, 0), Eigen::Vector3f::Ones()});
+    p.screens = {Screen::pinhole(p.eye, forward, Vector3d::UnitY(), 45, job.size, job.size * 3 / 4)};
+    if (scene.lights.empty()) scene.lights.push_back({p.eye + Vector3d(0, radius * 2, 0), Eigen::Vector3f::Ones()});
   }
-  if (auto g = finite(gaze, "--gaze"); !g) return std::unexpected(g.error());
-  for (const auto& s : screens)
+  if (!gaze.allFinite()) return fail(ErrorCode::invalid, "gaze: must be finite");
+  for (const auto& s : p.screens)
     if (auto st = s.validate(); !st) return std::unexpected(st.error());
   auto frame = EyeFrame::look(gaze);
   if (!frame) return fail("raytrace: " + frame.error().message);
+  p.frame = *frame;
+  return p;
+}
 
-  size_t triangles_max = 0, triangles_min = 0;
-  for (const auto& o : scene.objects) triangles_max += o.mesh.triangles(0), triangles_min += o.mesh.levels.back().size();
-  auto tracer = RayTracer::create(std::move(scene));
-  if (!tracer) return std::unexpected(tracer.error());
-  const RayTracer& rt = **tracer;
-
-  TraceOptions opt;
-  opt.reflect_max = job.reflect_max;
-  opt.field_lod = job.field_lod;
-  opt.gaze = *frame;
-  opt.threads = job.threads;
-  if (!job.quiet) std::fprintf(stderr, "raytrace: %zu screens of %dx%d, %s\n", screens.size(), screens[0].width, screens[0].height,
-                               job.field_lod ? "visual-field LOD" : "full detail");
-  // With a comparison to make, one untimed render first: the first pass pays
-  // for page faults and cold caches, which would bias the ratio.
-  if (job.compare_full && job.field_lod) render_layout(rt, screens, eye, opt);
-  const LayoutRender main = render_layout(rt, screens, eye, opt);
+// One PNG per screen (with its level picture under field LOD), and the CAVE unfolded.
+Status write_walls(const RaytraceJob& job, const std::string& layout, const std::vector<Screen>& screens,
+                   const LayoutRender& main) {
   std::error_code ec;
   fs::create_directories(job.out, ec);
   std::vector<ImageU8> walls;
   for (size_t i = 0; i < screens.size(); ++i) {
     walls.push_back(to_u8(main.walls[i].color));
-    if (auto st = write_image(job.out / (screens[i].name + ".png"), walls.back()); !st) return std::unexpected(st.error());
+    if (auto st = write_image(job.out / (screens[i].name + ".png"), walls.back()); !st) return st;
     if (job.field_lod)
       if (auto st = write_image(job.out / ("level_" + screens[i].name + ".png"), level_picture(main.walls[i].level)); !st)
-        return std::unexpected(st.error());
+        return st;
   }
-  if (layout == "cave")
-    if (auto st = write_image(job.out / "cave.png", unfold_cave(walls)); !st) return std::unexpected(st.error());
+  if (layout == "cave") return write_image(job.out / "cave.png", unfold_cave(walls));
+  return {};
+}
 
+void report_trace(const RayTracer& rt, const LayoutRender& main, Report& rep) {
   const TraceStats& s = main.stats;
   rep.counts["pixels"] = static_cast<double>(s.pixels);
   rep.counts["primary_rays"] = static_cast<double>(s.primary);
@@ -329,8 +325,6 @@ Result<Report> run_raytrace_job(const RaytraceJob& job) {
   rep.counts["shadow_rays"] = static_cast<double>(s.shadow);
   rep.counts["central_pixels"] = static_cast<double>(s.central);
   rep.counts["total_internal_reflections"] = static_cast<double>(s.total_internal);
-  rep.counts["triangles_full_detail"] = static_cast<double>(triangles_max);
-  rep.counts["triangles_coarsest"] = static_cast<double>(triangles_min);
   rep.counts["top_level_scenes"] = static_cast<double>(rt.top_scenes());
   rep.counts["render_seconds"] = main.seconds;
   rep.counts["bvh_build_seconds"] = rt.build_seconds();
@@ -340,31 +334,76 @@ Result<Report> run_raytrace_job(const RaytraceJob& job) {
   for (int q = 1; q < RayTracer::kQuanta; ++q)
     if (rt.detail_for(static_cast<double>(q) / RayTracer::kQuanta) != rt.detail_for(1.0)) coarser += s.rays_per_quantum[q];
   rep.skipped["primary_rays_on_coarser_meshes"] = static_cast<double>(coarser);
+}
+
+// The same view at full detail: the time ratio and the PSNR inside the
+// central field and over all pixels.
+Status compare_with_full(const RaytraceJob& job, const RayTracer& rt, const EyePlacement& p, const TraceOptions& opt,
+                         const LayoutRender& main, Report& rep) {
+  TraceOptions full = opt;
+  full.field_lod = false;
+  const LayoutRender ref = render_layout(rt, p.screens, p.eye, full);
+  for (size_t i = 0; i < p.screens.size(); ++i)
+    if (auto st = write_image(job.out / ("full_" + p.screens[i].name + ".png"), to_u8(ref.walls[i].color)); !st) return st;
+  const double central = psnr_where(main, ref, 1.0, 1.0), all = psnr_where(main, ref, 0.0, 1.0);
+  // JSON has no infinity: identical images are reported as 100 dB and flagged.
+  rep.errors["psnr_central_field_db"] = std::isinf(central) ? 100.0 : central;
+  rep.errors["psnr_all_pixels_db"] = std::isinf(all) ? 100.0 : all;
+  rep.params["central_field_identical"] = std::isinf(central);
+  rep.counts["full_render_seconds"] = ref.seconds;
+  rep.errors["time_ratio_lod_over_full"] = main.seconds / std::max(1e-9, ref.seconds);
+  if (!job.quiet)
+    std::fprintf(stderr, "raytrace: LOD %.3f s, full %.3f s (ratio %.3f); PSNR in the central field %s, all pixels %.2f dB\n",
+                 main.seconds, ref.seconds, main.seconds / std::max(1e-9, ref.seconds),
+                 std::isinf(central) ? "identical" : fmt::format("{:.2f} dB", central).c_str(), all);
+  return {};
+}
+
+}  // namespace
+
+// The scene, the eye and its screens, the tracer; one render (after an
+// untimed one when comparing), its images and counts; the full-detail peer.
+Result<Report> run_raytrace_job(const RaytraceJob& job) {
+  Stopwatch total;
+  Report rep;
+  rep.stage = "raytrace";
+  if (auto st = job.validate(); !st) return std::unexpected(st.error());
+  const bool seed = job.mesh.empty() && job.model.empty();
+  const std::string layout = job.layout.empty() ? (seed ? "cave" : "view") : job.layout;
+  auto scene = raytrace_scene(job, rep);
+  if (!scene) return std::unexpected(scene.error());
+  auto placed = place_eye(job, layout, *scene);
+  if (!placed) return std::unexpected(placed.error());
+  const EyePlacement& p = *placed;
+
+  size_t triangles_max = 0, triangles_min = 0;
+  for (const auto& o : scene->objects) triangles_max += o.mesh.triangles(0), triangles_min += o.mesh.levels.back().size();
+  auto tracer = RayTracer::create(std::move(*scene));
+  if (!tracer) return std::unexpected(tracer.error());
+  const RayTracer& rt = **tracer;
+  TraceOptions opt;
+  opt.reflect_max = job.reflect_max;
+  opt.field_lod = job.field_lod;
+  opt.gaze = p.frame;
+  opt.threads = job.threads;
+  if (!job.quiet)
+    std::fprintf(stderr, "raytrace: %zu screens of %dx%d, %s\n", p.screens.size(), p.screens[0].width, p.screens[0].height,
+                 job.field_lod ? "visual-field LOD" : "full detail");
+  // With a comparison to make, one untimed render first: the first pass pays
+  // for page faults and cold caches, which would bias the ratio.
+  if (job.compare_full && job.field_lod) render_layout(rt, p.screens, p.eye, opt);
+  const LayoutRender main = render_layout(rt, p.screens, p.eye, opt);
+  if (auto st = write_walls(job, layout, p.screens, main); !st) return std::unexpected(st.error());
+  report_trace(rt, main, rep);
+  rep.counts["triangles_full_detail"] = static_cast<double>(triangles_max);
+  rep.counts["triangles_coarsest"] = static_cast<double>(triangles_min);
   rep.params["layout"] = layout;
-  rep.params["eye"] = fmt::format("{},{},{}", eye.x(), eye.y(), eye.z());
-  rep.params["gaze"] = fmt::format("{:.4f},{:.4f},{:.4f}", frame->forward.x(), frame->forward.y(), frame->forward.z());
+  rep.params["eye"] = fmt::format("{},{},{}", p.eye.x(), p.eye.y(), p.eye.z());
+  rep.params["gaze"] = fmt::format("{:.4f},{:.4f},{:.4f}", p.frame.forward.x(), p.frame.forward.y(), p.frame.forward.z());
   rep.params["reflect_max"] = static_cast<double>(job.reflect_max);
   rep.params["field_lod"] = job.field_lod;
-
-  if (job.compare_full && job.field_lod) {
-    TraceOptions full = opt;
-    full.field_lod = false;
-    const LayoutRender ref = render_layout(rt, screens, eye, full);
-    for (size_t i = 0; i < screens.size(); ++i)
-      if (auto st = write_image(job.out / ("full_" + screens[i].name + ".png"), to_u8(ref.walls[i].color)); !st)
-        return std::unexpected(st.error());
-    const double central = psnr_where(main, ref, 1.0, 1.0), all = psnr_where(main, ref, 0.0, 1.0);
-    // JSON has no infinity: identical images are reported as 100 dB and flagged.
-    rep.errors["psnr_central_field_db"] = std::isinf(central) ? 100.0 : central;
-    rep.errors["psnr_all_pixels_db"] = std::isinf(all) ? 100.0 : all;
-    rep.params["central_field_identical"] = std::isinf(central);
-    rep.counts["full_render_seconds"] = ref.seconds;
-    rep.errors["time_ratio_lod_over_full"] = main.seconds / std::max(1e-9, ref.seconds);
-    if (!job.quiet)
-      std::fprintf(stderr, "raytrace: LOD %.3f s, full %.3f s (ratio %.3f); PSNR in the central field %s, all pixels %.2f dB\n",
-                   main.seconds, ref.seconds, main.seconds / std::max(1e-9, ref.seconds),
-                   std::isinf(central) ? "identical" : fmt::format("{:.2f} dB", central).c_str(), all);
-  }
+  if (job.compare_full && job.field_lod)
+    if (auto st = compare_with_full(job, rt, p, opt, main, rep); !st) return std::unexpected(st.error());
   rep.seconds = total.seconds();
   return rep;
 }

@@ -70,6 +70,10 @@ struct RaytraceJob {
   std::filesystem::path out;
   std::filesystem::path data_dir;  // empty: s2r::data_dir()
   bool quiet = false;
+
+  // The options' own ranges, an error naming the field ("size: must be
+  // within 8..8192"); what depends on the scene is checked by the job.
+  Status validate() const;
 };
 
 Result<Report> run_raytrace_job(const RaytraceJob& job);

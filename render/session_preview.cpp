@@ -19,7 +19,7 @@ Result<Preview> render_session_preview(GlContext& context, const Session& s, con
   Stopwatch clock;
   if (s.frames.empty()) return fail("session '" + s.root.string() + "' has no frames");
   if (o.view < 0 || o.view >= static_cast<int>(s.frames.size()))
-    return fail("--view " + std::to_string(o.view) + " is not a frame of this session (0.." +
+    return fail(ErrorCode::invalid, "view: " + std::to_string(o.view) + " is not a frame of this session (0.." +
                 std::to_string(s.frames.size() - 1) + ")");
   const Frame& target = s.frames[size_t(o.view)];
   auto K = resolve_color_intrinsics(s, target, nullptr);
