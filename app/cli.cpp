@@ -45,6 +45,7 @@ void add_commands(CLI::App& app, Chosen& chosen, bool& quiet) {
       "s2r - scan2render: turntable capture -> calibration -> reconstruction -> rendering.\n"
       "Every computing subcommand writes report.json (errors, counts, skipped work, seconds).");
   app.require_subcommand(1);
+  app.set_help_all_flag("--help-all", "every subcommand's options, on one page");
   app.add_flag("-q,--quiet", quiet, "no progress bars");
   add_data_commands(app, chosen);
   add_reconstruct_commands(app, chosen);
