@@ -54,4 +54,15 @@ void add_commands(CLI::App& app, Chosen& chosen, bool& quiet) {
   add_summary(app, chosen);
 }
 
+std::optional<int> parse_command_line(int argc, char** argv, Chosen& chosen, bool& quiet) {
+  CLI::App app;
+  add_commands(app, chosen, quiet);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  }
+  return std::nullopt;
+}
+
 }  // namespace s2r::cli

@@ -6,6 +6,8 @@
 
 #include <CLI/CLI.hpp>
 
+#include <optional>
+
 #include "app/args.h"
 
 namespace s2r::cli {
@@ -13,6 +15,9 @@ namespace s2r::cli {
 // The whole command line: the description, -q/--quiet into `quiet`, and every
 // subcommand; the parse sets `chosen` to the subcommand it selects.
 void add_commands(CLI::App& app, Chosen& chosen, bool& quiet);
+// The command line parsed into `chosen` and `quiet`; a help page or a usage
+// error is printed here and its exit code returned.
+std::optional<int> parse_command_line(int argc, char** argv, Chosen& chosen, bool& quiet);
 
 void add_data_commands(CLI::App& app, Chosen& chosen);         // synth, import, inspect, devices, capture, calibrate
 void add_reconstruct_commands(CLI::App& app, Chosen& chosen);  // register, reconstruct

@@ -69,15 +69,9 @@ int main(int argc, char** argv) {
   // rig's reconstruct, a tenth of the run was page faults).
   mallopt(M_MMAP_THRESHOLD, 32 << 20);  // glibc's largest
   mallopt(M_TRIM_THRESHOLD, 1 << 30);
-  CLI::App app;
   Chosen chosen;
   bool quiet = false;
-  add_commands(app, chosen, quiet);
-  try {
-    app.parse(argc, argv);
-  } catch (const CLI::ParseError& e) {
-    return app.exit(e);
-  }
+  if (auto done = parse_command_line(argc, argv, chosen, quiet)) return *done;
   if (quiet) s2r::set_progress_enabled(false);
   // Keep libcamera's probing quiet unless the user asked for its logs.
   setenv("LIBCAMERA_LOG_LEVELS", "*:ERROR", 0);

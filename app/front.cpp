@@ -14,15 +14,9 @@
 
 int main(int argc, char** argv) {
   using namespace s2r::cli;
-  CLI::App app;
   Chosen chosen;
   bool quiet = false;
-  add_commands(app, chosen, quiet);
-  try {
-    app.parse(argc, argv);
-  } catch (const CLI::ParseError& e) {
-    return app.exit(e);
-  }
+  if (auto done = parse_command_line(argc, argv, chosen, quiet)) return *done;
   std::error_code ec;
   const std::filesystem::path self = std::filesystem::read_symlink("/proc/self/exe", ec);
   if (ec) {

@@ -471,15 +471,16 @@ size_t fuse_row_distorted(const UpdateView& c, const Eigen::Vector3f& row, int c
 // One leaf (origin `o`) updated by all its views in order while it sits in
 // cache: per voxel the same updates in the same order as one view after the
 // other. The crop box is tested per voxel only where the leaf crosses it.
-size_t fuse_leaf(const SparseVolume::Impl& m, const Coord& o, const UpdateView* const* views, size_t count,
-                 openvdb::Vec3s* val) {
+// `first`..`last`: the leaf's (leaf, view) pairs, views indexing `views`.
+size_t fuse_leaf(const SparseVolume::Impl& m, const Coord& o, const std::vector<UpdateView>& views,
+                 const std::pair<Coord, uint32_t>* first, const std::pair<Coord, uint32_t>* last, openvdb::Vec3s* val) {
   constexpr int D = kLeaf;
   const Eigen::Vector3d lo = m.centre(o), hi = m.centre(o.offsetBy(D - 1));
   const bool inside = !m.crop || (m.crop->contains(lo) && m.crop->contains(hi));
   const float tau = float(m.tau), behind = float(m.behind);
   size_t updates = 0;
-  for (size_t p = 0; p < count; ++p) {
-    const UpdateView& c = *views[p];
+  for (const auto* p = first; p != last; ++p) {
+    const UpdateView& c = views[p->second];
     const Eigen::Vector3f base = (c.cam_from_world * lo).cast<float>();
     for (int i = 0; i < D; ++i)
       for (int j = 0; j < D; ++j) {
@@ -554,15 +555,13 @@ void SparseVolume::integrate(const std::vector<DepthObservation>& views, int thr
   in_arena(threads, [&] {
     tbb::parallel_for(tbb::blocked_range<size_t>(0, runs.starts.size() - 1), [&](const auto& range) {
       size_t local = 0;
-      std::vector<const UpdateView*> leaf_views;
       openvdb::tree::ValueAccessor<const TsdfTree> acc(m.tsdf->tree());
       for (size_t g = range.begin(); g != range.end(); ++g) {
         const Coord o = runs.pairs[runs.starts[g]].first;
         auto* dst = const_cast<TsdfTree::LeafNodeType*>(acc.probeConstLeaf(o));
         if (!dst) continue;
-        leaf_views.clear();
-        for (size_t p = runs.starts[g]; p < runs.starts[g + 1]; ++p) leaf_views.push_back(&vd[runs.pairs[p].second]);
-        local += fuse_leaf(m, o, leaf_views.data(), leaf_views.size(), dst->buffer().data());
+        local += fuse_leaf(m, o, vd, runs.pairs.data() + runs.starts[g], runs.pairs.data() + runs.starts[g + 1],
+                           dst->buffer().data());
       }
       updates += local;
     });
