@@ -34,7 +34,7 @@ struct SynthArgs {
   std::string out, report;
 };
 struct ImportArgs {
-  std::string kind, path, out, report;
+  std::string kind, path, out, report, background;
   ImportOptions options;
 };
 struct InspectArgs {
@@ -99,14 +99,14 @@ struct PreviewArgs {
 };
 struct RenderArgs {
   RenderJob job;
-  std::string report;
+  std::string report, background;
   int view = -1;  // -1: none (then a view file)
   DrawArgs draw;
   EnvArgs env;
 };
 struct EvalArgs {
   EvalJob job;
-  std::string out, holdout;  // out: default MODEL/eval
+  std::string out, holdout, background;  // out: default MODEL/eval
   DrawArgs draw;
 };
 struct ViewArgs {

@@ -86,6 +86,7 @@ void add_render(CLI::App& app, Chosen& chosen) {
   sub->add_option("--view", a->view, "session frame whose camera draws the image (0-based)");
   sub->add_option("--pose", job.view_file, "view file: {format s2r.view, intrinsics, world_from_camera}");
   sub->add_option("--scale", job.scale, "image size relative to the camera's")->capture_default_str();
+  sub->add_option("--background", a->background, "white, black or R,G,B (0-255 levels); default: black");
   sub->add_option("--report", a->report, "report path (default: beside --out)");
   add_draw_options(sub, a->draw);
   add_source_options(sub, job.source);
@@ -105,6 +106,7 @@ void add_eval(CLI::App& app, Chosen& chosen) {
   sub->add_option("--holdout", a->holdout, "I,J,...: frames to render and compare")->required();
   sub->add_option("--out", a->out, "output folder (default MODEL/eval)");
   sub->add_flag_callback("--no-baselines", [&job] { job.baselines = false; }, "billboards only");
+  sub->add_option("--background", a->background, "white, black or R,G,B (0-255 levels); default: the session's own background, else the backdrop's colour, else black");
   add_draw_options(sub, a->draw);
   add_source_options(sub, job.source);
   sub->callback([a, &chosen] { chosen = a; });

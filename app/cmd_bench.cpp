@@ -637,7 +637,7 @@ int bench_render(const fs::path& out, const std::string& scene_in) {
     // Held-out PSNR per setting, then every setting's frame time on one
     // loaded model, interleaved frame by frame (time_orbit).
     std::vector<const Setting*> ok;
-    std::vector<Report> evals;
+    std::vector<EvalSummary> evals;
     for (const auto& setting : settings) {
       EvalJob e;
       e.model = model;
@@ -662,13 +662,12 @@ int bench_render(const fs::path& out, const std::string& scene_in) {
     for (size_t k = 0; k < ok.size(); ++k) {
       const Setting& setting = *ok[k];
       const FrameTiming& ft = (*timing)[k];
-      const Report& ev = evals[k];
       if (setting.label == no_lod) base = k;
       rep.params["renderer"] = ft.renderer;
-      const std::string m = method(setting.draw);
-      const double p = ev.errors.at("psnr_db_" + m);
+      const EvalMethodFigures& ev = *evals[k].method(method(setting.draw));
+      const double p = ev.psnr_db;
       t.row_labels.push_back(scene + ": " + setting.label);
-      t.rows.push_back({ft.median_ms, p, ev.errors.at("ssim_" + m), ev.counts.at("coverage_" + m), ft.facets_drawn_mean});
+      t.rows.push_back({ft.median_ms, p, ev.ssim, ev.coverage, ft.facets_drawn_mean});
       rep.errors[fmt::format("psnr_db_{}_{}", scene, setting.label)] = p;
       rep.counts[fmt::format("frame_ms_{}_{}", scene, setting.label)] = ft.median_ms;
       std::fprintf(stderr, "%s, %s: held-out PSNR %.2f dB, %.1f ms per 1280x720 frame\n", scene.c_str(), setting.label.c_str(), p,
@@ -678,14 +677,14 @@ int bench_render(const fs::path& out, const std::string& scene_in) {
     // ratio, the PSNR change, and whether it cuts time at equal PSNR (within
     // 0.5 dB).
     if (base == ok.size()) continue;
-    const double base_db = evals[base].errors.at("psnr_db_billboards");
+    const double base_db = evals[base].method("billboards")->psnr_db;
     for (size_t k = 0; k < ok.size(); ++k) {
       const std::string& label = ok[k]->label;
       if (std::find(lod_labels.begin(), lod_labels.end(), label) == lod_labels.end()) continue;
       std::vector<double> ratios;
       for (size_t f = 0; f < (*timing)[k].frame_ms.size(); ++f)
         ratios.push_back((*timing)[k].frame_ms[f] / (*timing)[base].frame_ms[f]);
-      const double ratio = median(ratios), delta = evals[k].errors.at("psnr_db_" + method(ok[k]->draw)) - base_db;
+      const double ratio = median(ratios), delta = evals[k].method(method(ok[k]->draw))->psnr_db - base_db;
       rep.counts[fmt::format("lod_time_ratio_{}_{}", scene, label)] = ratio;
       rep.errors[fmt::format("lod_psnr_change_db_{}_{}", scene, label)] = delta;
       if (ratio < 1 && delta > -0.5) rep.counts[fmt::format("lod_faster_at_equal_psnr_{}_{}", scene, label)] = 1;

@@ -82,7 +82,13 @@ int run(const SynthArgs& a) {
 }
 
 int run(const ImportArgs& a) {
-  auto r = import_dataset(a.kind, a.path, a.out, a.options);
+  ImportOptions o = a.options;
+  if (!a.background.empty()) {
+    auto bg = parse_background(a.background, "--background");
+    if (!bg) return error(bg.error().message);
+    o.background = *bg;
+  }
+  auto r = import_dataset(a.kind, a.path, a.out, o);
   if (!r) return error(r.error().message);
   return finish(*r, report_path(a.report, fs::path(a.out) / "report.json"));
 }

@@ -108,11 +108,16 @@ int run(const RenderArgs& a) {
   auto draw = draw_options(a.draw);
   if (!draw) return error(draw.error().message);
   job.draw = *draw;
+  if (!a.background.empty()) {
+    auto bg = parse_background(a.background, "--background");
+    if (!bg) return error(bg.error().message);
+    job.background = *bg;
+  }
   auto env = environment_setup(a.env);
   if (!env) return error(env.error().message);
   job.environment = *env;
   auto r = run_render_job(job);
-  if (!r) return error(in_flag_terms(r.error(), {{"scale", "--scale"}}));
+  if (!r) return error(in_flag_terms(r.error(), {{"scale", "--scale"}, {"session", "--session"}, {"up", "--up"}, {"panorama", "--panorama"}}));
   return finish(*r, a.report.empty() ? beside(job.out) : fs::path(a.report));
 }
 
@@ -125,9 +130,14 @@ int run(const EvalArgs& a) {
   auto draw = draw_options(a.draw);
   if (!draw) return error(draw.error().message);
   job.draw = *draw;
+  if (!a.background.empty()) {
+    auto bg = parse_background(a.background, "--background");
+    if (!bg) return error(bg.error().message);
+    job.background = *bg;
+  }
   auto r = run_eval_job(job);
   if (!r) return error(in_flag_terms(r.error(), {{"frames", "--holdout"}, {"session", "--session"}}));
-  return finish(*r, job.out / "report.json");
+  return finish(r->to_report(), job.out / "report.json");
 }
 
 int run(const ViewArgs& a) {
@@ -139,7 +149,7 @@ int run(const ViewArgs& a) {
   if (!env) return error(env.error().message);
   o.environment = *env;
   auto r = run_viewer(o);
-  if (!r) return error(r.error().message);
+  if (!r) return error(in_flag_terms(r.error(), {{"up", "--up"}, {"panorama", "--panorama"}}));
   std::fprintf(stderr, "%s\n", r->brief().c_str());
   return 0;
 }

@@ -43,6 +43,22 @@ std::string in_flag_terms(const Error& e, const FlagNames& names) {
   return e.message;
 }
 
+Result<std::array<float, 3>> parse_background(const std::string& s, const std::string& flag) {
+  if (s == "white") return std::array<float, 3>{1, 1, 1};
+  if (s == "black") return std::array<float, 3>{0, 0, 0};
+  const auto items = comma_items(s);
+  std::array<float, 3> rgb{};
+  bool ok = items.size() == 3;
+  for (size_t c = 0; ok && c < 3; ++c) {
+    char* end = nullptr;
+    const long v = std::strtol(items[c].c_str(), &end, 10);
+    ok = end != items[c].c_str() && *end == '\0' && v >= 0 && v <= 255;
+    rgb[c] = float(v) / 255.f;
+  }
+  if (!ok) return fail(ErrorCode::invalid, flag + ": expected white, black or R,G,B with levels 0-255, got '" + s + "'");
+  return rgb;
+}
+
 Result<std::vector<int>> frame_list(const std::string& s, const std::string& flag) {
   std::vector<int> out;
   for (const auto& item : comma_items(s)) {

@@ -3,6 +3,7 @@
 // 2 usage / not available); and the helpers the runs share.
 #pragma once
 
+#include <array>
 #include <filesystem>
 #include <optional>
 #include <string>
@@ -42,6 +43,9 @@ int error(const std::string& message);
 std::vector<std::string> comma_items(const std::string& s);
 // A positive, finite length in metres, the whole token.
 std::optional<double> positive_metres(const std::string& item);
+// "white", "black" or "R,G,B" (0-255 levels each) -> RGB in [0, 1]; `flag`
+// names the option in the error.
+Result<std::array<float, 3>> parse_background(const std::string& s, const std::string& flag);
 // "3,7,11" -> frame indices (>= 0); `flag` names the option in the error.
 Result<std::vector<int>> frame_list(const std::string& s, const std::string& flag);
 

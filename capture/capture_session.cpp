@@ -21,7 +21,7 @@ Result<Report> run_capture(CaptureDevices& dev, const CaptureOptions& o, const s
   std::optional<SessionWriter> writer;
   const bool exists = fs::exists(o.out / "session.json");
   if (exists && !o.resume)
-    return fail("'" + o.out.string() + "' already holds a session; add --resume to continue it");
+    return fail("'" + o.out.string() + "' already holds a session; resume it to continue");
   if (exists) {
     auto w = SessionWriter::resume(o.out);
     if (!w) return std::unexpected(w.error());
@@ -68,7 +68,7 @@ Result<Report> run_capture(CaptureDevices& dev, const CaptureOptions& o, const s
     if (stop && stop->load()) {
       progress.done();
       return fail("interrupted after " + std::to_string(i) + " of " + std::to_string(o.steps) +
-                  " frames; every written frame is complete: continue with --resume");
+                  " frames; every written frame is complete: resume the session to continue");
     }
     const std::string at = "frame " + std::to_string(i) + ": ";
     const double angle = 360.0 * i / o.steps;

@@ -74,7 +74,7 @@ TEST_F(CaptureTest, CompletesAndRefusesToOverwrite) {
   expect_complete(6);
   r = capture({}, 6, false);
   ASSERT_FALSE(r);
-  EXPECT_NE(r.error().message.find("--resume"), std::string::npos);
+  EXPECT_NE(r.error().message.find("resume it"), std::string::npos);
   r = capture({}, 6, true);  // complete already: nothing to do, nothing overwritten
   ASSERT_TRUE(r) << r.error().message;
   EXPECT_EQ(r->skipped.at("frames_already_captured"), 6);

@@ -82,7 +82,7 @@ Result<std::unique_ptr<GrblTurntable>> GrblTurntable::open(const std::string& pa
   if (s->state == "Alarm") {
     if (!o.unlock_alarm)
       return fail(ErrorCode::device_fault,
-                  "turntable on '" + path + "' starts in alarm state; check it, then unlock ($X or --unlock-alarm)");
+                  "turntable on '" + path + "' starts in alarm state; check it, then unlock it (unlock_alarm sends $X)");
     if (auto st = t->command("$X"); !st) return std::unexpected(st.error());
   }
   return t;

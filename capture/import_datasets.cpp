@@ -5,9 +5,12 @@
 #include <regex>
 #include <sstream>
 
+#include <fmt/format.h>
+
 #include "capture/session.h"
 #include "capture/stanford_conf.h"
 #include "core/image_io.h"
+#include "core/json_fields.h"
 #include "core/mesh.h"
 #include "core/progress.h"
 
@@ -248,6 +251,174 @@ Result<Report> sevenscenes(const fs::path& dir, const fs::path& out, const Impor
   return im.report;
 }
 
+
+// --- NeRF / nerfstudio / instant-ngp transforms.json -----------------------------
+//
+// Pixel centres: Blender renders pixel (i, j) at (i + 0.5, j + 0.5) with the
+// principal point at the image centre, and nerfstudio and instant-ngp give cx,
+// cy in that continuous convention too; this project's intrinsics put pixel
+// centres at integers (OpenCV), so cx = cx' - 0.5.
+
+// Which transforms file a path names.
+Result<fs::path> transforms_file(const fs::path& path, const std::string& split) {
+  if (fs::is_regular_file(path)) return path;
+  const fs::path named = path / ("transforms_" + (split.empty() ? std::string("train") : split) + ".json");
+  if (!split.empty()) {
+    if (!fs::exists(named)) return fail(ErrorCode::not_found, "'" + path.string() + "': no transforms_" + split + ".json");
+    return named;
+  }
+  if (fs::exists(path / "transforms.json")) return path / "transforms.json";
+  if (fs::exists(named)) return named;
+  return fail(ErrorCode::not_found, "'" + path.string() + "': no transforms.json nor transforms_train.json");
+}
+
+// A frame's file: as written, else with the extensions Blender's scenes leave out.
+Result<fs::path> frame_image(const fs::path& base, const std::string& rel) {
+  const fs::path p = base / rel;
+  for (const char* ext : {"", ".png", ".jpg", ".jpeg", ".PNG", ".JPG"}) {
+    fs::path q = p;
+    q += ext;
+    if (fs::is_regular_file(q)) return q;
+  }
+  return fail(ErrorCode::not_found, "'" + p.string() + "': image not found (tried .png and .jpg too)");
+}
+
+// The camera of a frame from its own keys, else the file's (global) ones.
+Intrinsics nerf_intrinsics(const FieldReader& frame, const FieldReader& top, int width, int height) {
+  auto number = [&](const char* key) -> std::optional<double> {
+    if (frame.has(key)) return frame.number(key);
+    if (top.has(key)) return top.number(key);
+    return std::nullopt;
+  };
+  Intrinsics K;
+  K.width = width;
+  K.height = height;
+  const auto fl_x = number("fl_x"), fl_y = number("fl_y"), ax = number("camera_angle_x"), ay = number("camera_angle_y");
+  if (fl_x) K.fx = *fl_x;
+  else if (ax) K.fx = 0.5 * width / std::tan(0.5 * *ax);
+  else frame.error("fl_x", "neither fl_x nor camera_angle_x is given");
+  if (fl_y) K.fy = *fl_y;
+  else if (ay) K.fy = 0.5 * height / std::tan(0.5 * *ay);
+  else K.fy = K.fx;
+  K.cx = number("cx").value_or(0.5 * width) - 0.5;
+  K.cy = number("cy").value_or(0.5 * height) - 0.5;
+  const char* dist[] = {"k1", "k2", "p1", "p2", "k3"};
+  for (size_t i = 0; i < 5; ++i) K.dist[i] = number(dist[i]).value_or(0.0);
+  return K;
+}
+
+// A 4x4 matrix as four rows of four numbers; its rotation proper and
+// orthonormal within 1e-3 (a scaled camera-to-world is not a camera pose).
+Eigen::Matrix4d nested_matrix4(const FieldReader& m) {
+  if (m.array_size() != 4) m.error("expected 4 rows of 4 numbers");
+  Eigen::Matrix4d a;
+  for (size_t r = 0; r < 4; ++r) {
+    FieldReader row = m.index(r);
+    if (row.array_size() != 4) row.error("expected 4 numbers");
+    for (size_t c = 0; c < 4; ++c) {
+      const auto& v = row.raw()[c];
+      if (!v.is_number() || !std::isfinite(v.get<double>())) row.error("element " + std::to_string(c) + " is not a finite number");
+      a(Eigen::Index(r), Eigen::Index(c)) = v.get<double>();
+    }
+  }
+  const Eigen::Matrix3d R = a.topLeftCorner<3, 3>();
+  if ((R.transpose() * R - Eigen::Matrix3d::Identity()).norm() > 1e-3 || R.determinant() < 0)
+    m.error("rotation part is not a proper rotation (R^T R != I or det < 0)");
+  return a;
+}
+
+// transform_matrix: camera-to-world, camera axes x right, y up, looking along -z.
+Eigen::Isometry3d opencv_from_opengl_pose(const Eigen::Matrix4d& c2w) {
+  Eigen::Isometry3d t = orthonormalised(c2w);
+  t.linear() = t.linear() * Eigen::Vector3d(1, -1, -1).asDiagonal();
+  return t;
+}
+
+Result<Report> nerf(const fs::path& path, const fs::path& out, const ImportOptions& o) {
+  auto file = transforms_file(path, o.split);
+  if (!file) return std::unexpected(file.error());
+  auto j = parse_json_file(*file);
+  if (!j) return std::unexpected(j.error());
+  const std::array<float, 3> bg = o.background.value_or(std::array<float, 3>{1.f, 1.f, 1.f});
+  Importer im;
+  im.header.layout = Layout::kObjectCentre;
+  im.header.notes.push_back("transforms.json (" + file->filename().string() +
+                            "): camera-to-world in OpenGL axes, turned to OpenCV's; principal point moved by -0.5 px "
+                            "(pixel centres at integers)");
+  std::vector<std::pair<Frame, fs::path>> frames;
+  try {
+    FieldReader top(*j, file->filename().string());
+    FieldReader list = top.at("frames");
+    const fs::path base = file->parent_path();
+    for (size_t i = 0; i < list.array_size(); ++i) {
+      FieldReader fr = list.index(i);
+      Frame f;
+      f.source = fr.string("file_path");
+      auto img = frame_image(base, f.source);
+      if (!img) fr.error("file_path", img.error().message);
+      f.world_from_camera = opencv_from_opengl_pose(nested_matrix4(fr.at("transform_matrix")));
+      frames.push_back({std::move(f), *img});
+    }
+    if (frames.empty()) top.error("frames", "no frame");
+    // Image sizes may be left out (Blender): the first frame's file says.
+    auto info = probe_image(frames.front().second);
+    if (!info) return std::unexpected(info.error());
+    for (size_t i = 0; i < frames.size(); ++i) {
+      FieldReader fr = list.index(i);
+      const int w = int(fr.has("w") ? fr.integer("w") : top.has("w") ? top.integer("w") : info->width);
+      const int h = int(fr.has("h") ? fr.integer("h") : top.has("h") ? top.integer("h") : info->height);
+      frames[i].first.intrinsics = nerf_intrinsics(fr, top, w, h);
+      if (auto st = frames[i].first.intrinsics->validate(file->string() + ": frames[" + std::to_string(i) + "]"); !st)
+        return std::unexpected(st.error());
+    }
+  } catch (const FormatError& e) {
+    return fail(ErrorCode::format, e.what());
+  }
+  if (auto st = im.begin(out, "nerf"); !st) return std::unexpected(st.error());
+  Progress progress("import nerf", frames.size());
+  int taken = 0;
+  size_t with_alpha = 0;
+  for (size_t i = 0; i < frames.size(); ++i, progress.tick()) {
+    if (!take(static_cast<int>(i), o, taken)) continue;
+    auto& [f, image] = frames[i];
+    auto img = read_image_u8(image);
+    if (!img) return std::unexpected(img.error());
+    const Intrinsics& K = *f.intrinsics;
+    if (img->width != K.width || img->height != K.height)
+      return fail(ErrorCode::format, fmt::format("'{}' is {}x{} but {} says {}x{}", image.string(), img->width, img->height,
+                                                 file->filename().string(), K.width, K.height));
+    f.index = taken;
+    std::optional<ImageU8> matte;
+    if (img->channels == 4) {
+      ImageU8 rgb(img->width, img->height, 3);
+      matte = ImageU8(img->width, img->height, 1);
+      for (size_t p = 0; p < rgb.pixels(); ++p) {
+        const int a = img->data[p * 4 + 3];
+        matte->data[p] = uint8_t(a);
+        for (size_t c = 0; c < 3; ++c)
+          rgb.data[p * 3 + c] = uint8_t(std::lround((img->data[p * 4 + c] * a + bg[c] * 255.f * (255 - a)) / 255.f));
+      }
+      *img = std::move(rgb);
+      ++with_alpha;
+    } else {
+      *img = to_rgb(std::move(*img));
+    }
+    if (!im.header.color) {
+      im.header.color = ColorSensor{"import", "nerf", "RGB8", K, 0, 0};
+      im.writer->mutable_header().color = im.header.color;
+    }
+    if (matte && !im.writer->session().background) im.writer->mutable_header().background = bg;
+    if (auto st = im.writer->add_frame(f, &*img, nullptr, matte ? &*matte : nullptr); !st) return std::unexpected(st.error());
+    ++taken;
+  }
+  progress.done();
+  im.report.counts["frames"] = taken;
+  im.report.counts["frames_with_matte"] = double(with_alpha);
+  im.report.params["transforms"] = file->string();
+  if (with_alpha) im.report.params["background"] = fmt::format("{},{},{}", bg[0], bg[1], bg[2]);
+  return im.report;
+}
+
 }  // namespace
 
 Result<Report> import_dataset(const std::string& kind, const fs::path& path, const fs::path& out,
@@ -255,11 +426,12 @@ Result<Report> import_dataset(const std::string& kind, const fs::path& path, con
   Stopwatch clock;
   std::error_code ec;
   if (!fs::exists(path, ec)) return fail("'" + path.string() + "': not found");
-  Result<Report> r = fail("unknown data set '" + kind + "' (choose stanford, middlebury, realsense or 7scenes)");
+  Result<Report> r = fail("unknown data set '" + kind + "' (choose stanford, middlebury, realsense, 7scenes or nerf)");
   if (kind == "stanford") r = stanford(path, out, options);
   else if (kind == "middlebury") r = middlebury(path, out, options);
   else if (kind == "realsense") r = realsense(path, out, options);
   else if (kind == "7scenes") r = sevenscenes(path, out, options);
+  else if (kind == "nerf") r = nerf(path, out, options);
   if (r) r->seconds = clock.seconds();
   return r;
 }

@@ -6,11 +6,19 @@
 //              per-frame intrinsics and given poses
 //   realsense  D435 colour + aligned 16-bit depth (mm), fixed intrinsics
 //   7scenes    colour, depth (65535 -> no measurement), 4x4 camera-to-world
+//   nerf       a transforms.json (NeRF's Blender scenes, nerfstudio, instant-ngp):
+//              camera_angle_x or fl_x/fl_y/cx/cy with k1 k2 p1 p2 (k3), global or
+//              per frame; camera-to-world in OpenGL axes turned into OpenCV's;
+//              an RGBA photo becomes its colour on the background (white unless
+//              given) plus its alpha as the frame's matte. Each split is imported
+//              on its own into the same world frame (no rescaling, no centring).
 //
 // Frames keep the source's own listing order; `source` keeps the original name.
 #pragma once
 
+#include <array>
 #include <filesystem>
+#include <optional>
 #include <string>
 
 #include "core/report.h"
@@ -21,6 +29,8 @@ namespace s2r {
 struct ImportOptions {
   int stride = 1;      // take every n-th view
   int max_frames = 0;  // 0 = all
+  std::string split;   // nerf: transforms_<split>.json; empty: transforms.json, else transforms_train.json
+  std::optional<std::array<float, 3>> background;  // nerf: what RGBA photos are composited on (default white)
 };
 
 Result<Report> import_dataset(const std::string& kind, const std::filesystem::path& path,

@@ -25,6 +25,7 @@ json frame_to_json(const Frame& f) {
   if (!f.color.empty()) j["color"] = f.color;
   if (!f.depth.empty()) j["depth"] = f.depth;
   if (!f.points.empty()) j["points"] = f.points;
+  if (!f.mask.empty()) j["mask"] = f.mask;
   if (!f.source.empty()) j["source"] = f.source;
   if (f.exposure_us > 0) j["exposure_us"] = f.exposure_us;
   if (f.world_from_camera) j["world_from_camera"] = rigid_to_json(*f.world_from_camera);
@@ -41,6 +42,8 @@ Frame frame_from(const FieldReader& r) {
   f.color = r.string_or("color", "");
   f.depth = r.string_or("depth", "");
   f.points = r.string_or("points", "");
+  f.mask = r.string_or("mask", "");
+  if (!f.mask.empty() && f.color.empty()) r.error("mask", "a matte needs the frame's colour image");
   f.source = r.string_or("source", "");
   f.exposure_us = r.number_or("exposure_us", 0);
   if (r.has("world_from_camera")) f.world_from_camera = r.rigid("world_from_camera");
@@ -71,6 +74,7 @@ json session_to_json(const Session& s) {
   if (s.turntable) dev["turntable"] = {{"driver", s.turntable->driver}, {"device", s.turntable->device}};
   j["devices"] = dev;
   j["notes"] = s.notes;
+  if (s.background) j["background"] = *s.background;
   json frames = json::array();
   for (const auto& f : s.frames) frames.push_back(frame_to_json(f));
   j["frames"] = frames;
@@ -135,6 +139,17 @@ Session session_from(const json& j, const fs::path& dir, const SessionLoadOption
       s.turntable = TurntableInfo{t.string_or("driver", ""), t.string_or("device", "")};
     }
   }
+  if (doc.has("background")) {
+    const json& b = doc.raw()["background"];
+    if (!b.is_array() || b.size() != 3) doc.error("background", "expected [r, g, b] in [0, 1]");
+    std::array<float, 3> rgb{};
+    for (size_t c = 0; c < 3; ++c) {
+      if (!b[c].is_number() || !(b[c].get<double>() >= 0 && b[c].get<double>() <= 1))
+        doc.error("background", "expected [r, g, b] in [0, 1]");
+      rgb[c] = b[c].get<float>();
+    }
+    s.background = rgb;
+  }
   if (doc.has("notes")) {
     FieldReader n = doc.at("notes");
     for (size_t i = 0; i < n.array_size(); ++i)
@@ -157,6 +172,7 @@ Session session_from(const json& j, const fs::path& dir, const SessionLoadOption
     check_file_field(s, fr, "depth", f.depth, opts.check_images,
                      s.depth ? std::optional<Intrinsics>(s.depth->intrinsics) : std::nullopt);
     check_file_field(s, fr, "points", f.points, false, std::nullopt);
+    check_file_field(s, fr, "mask", f.mask, opts.check_images, s.color_intrinsics(f));
     s.frames.push_back(std::move(f));
   }
   return s;
@@ -190,6 +206,7 @@ Status merge_journal(Session& s, const SessionLoadOptions& opts) {
       check_file_field(s, fr, "color", f.color, opts.check_images, s.color_intrinsics(f));
       check_file_field(s, fr, "depth", f.depth, opts.check_images,
                        s.depth ? std::optional<Intrinsics>(s.depth->intrinsics) : std::nullopt);
+      check_file_field(s, fr, "mask", f.mask, opts.check_images, s.color_intrinsics(f));
       s.frames.push_back(std::move(f));
     } catch (const FormatError& e) {
       return fail(e.what());
@@ -245,6 +262,16 @@ Result<ImageU16> load_depth(const Session& s, const Frame& f) {
   return img;
 }
 
+Result<ImageU8> load_mask(const Session& s, const Frame& f) {
+  if (f.mask.empty()) return fail(ErrorCode::not_found, "frame " + std::to_string(f.index) + " has no matte");
+  auto p = resolve_inside(s.root, f.mask);
+  if (!p) return std::unexpected(p.error());
+  auto img = read_image_u8(*p);
+  if (img && img->channels != 1)
+    return fail(ErrorCode::format, "'" + p->string() + "': a matte must have 1 channel, has " + std::to_string(img->channels));
+  return img;
+}
+
 Status save_session_json(const Session& s) {
   return write_file_atomic(s.root / "session.json", dump_json(session_to_json(s)));
 }
@@ -253,7 +280,7 @@ Result<SessionWriter> SessionWriter::create(Session header) {
   std::error_code ec;
   if (fs::exists(header.root / "session.json", ec))
     return fail("'" + header.root.string() +
-                "' already holds a session; use --resume to continue it or choose another folder");
+                "' already holds a session; resume it to continue, or choose another folder");
   header.frames.clear();
   fs::create_directories(header.root, ec);
   if (ec) return fail("cannot create '" + header.root.string() + "': " + ec.message());
@@ -266,7 +293,7 @@ Result<SessionWriter> SessionWriter::resume(const fs::path& dir) {
   // Links are checked first: nothing outside the folder is deleted or written.
   if (auto st = check_links_inside(dir); !st) return std::unexpected(with_context(st.error(), "cannot resume"));
   std::error_code ec;
-  for (const char* sub : {"", "color", "depth", "points"})
+  for (const char* sub : {"", "color", "depth", "points", "mask"})
     for (const auto& e : fs::directory_iterator(dir / sub, ec))
       if (e.path().filename().string().find(".tmp-") != std::string::npos) fs::remove(e.path(), ec);
   auto s = load_session(dir);
@@ -274,7 +301,7 @@ Result<SessionWriter> SessionWriter::resume(const fs::path& dir) {
   return SessionWriter(std::move(*s));
 }
 
-Status SessionWriter::add_frame(Frame frame, const ImageU8* color, const ImageU16* depth) {
+Status SessionWriter::add_frame(Frame frame, const ImageU8* color, const ImageU16* depth, const ImageU8* mask) {
   if (frame.index != next_index())
     return fail("frame index " + std::to_string(frame.index) + " but the session expects " +
                 std::to_string(next_index()));
@@ -286,6 +313,13 @@ Status SessionWriter::add_frame(Frame frame, const ImageU8* color, const ImageU1
   if (depth) {
     frame.depth = "depth/" + frame_file_name(frame.index, "png");
     if (auto st = write_image(session_.root / frame.depth, *depth, fast_ ? PngEffort::kFast : PngEffort::kCompact); !st)
+      return st;
+  }
+  if (mask) {
+    if (!color || mask->channels != 1 || mask->width != color->width || mask->height != color->height)
+      return fail(ErrorCode::invalid, "frame " + std::to_string(frame.index) + ": a matte is one channel the colour image's size");
+    frame.mask = "mask/" + frame_file_name(frame.index, "png");
+    if (auto st = write_image(session_.root / frame.mask, *mask, fast_ ? PngEffort::kFast : PngEffort::kCompact); !st)
       return st;
   }
   json line = {{"frame", frame_to_json(frame)}};

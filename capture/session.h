@@ -5,12 +5,15 @@
 //   SESSION/color/NNNN.png    8-bit colour
 //   SESSION/depth/NNNN.png    16-bit depth, `unit_m` metres per count, 0 = none
 //   SESSION/points/NNNN.ply   optional: scanner points (range scans)
+//   SESSION/mask/NNNN.png     optional: 8-bit matte of the object (255 inside,
+//                             fractional at its edges), e.g. an RGBA photo's alpha
 //
 // Frames are written file-then-rename, then journaled, then session.json is
 // rewritten atomically, so a session killed at any instant loads (and
 // resumes) with every completed frame and no half-written one.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <filesystem>
 #include <optional>
@@ -58,6 +61,7 @@ struct Frame {
   std::string color;   // relative path or empty
   std::string depth;   // relative path or empty
   std::string points;  // relative path or empty
+  std::string mask;    // relative path or empty: the object's matte, same size as colour
   std::string source;  // original name (imports), e.g. "bun045.ply"
   double exposure_us = 0;
   std::optional<Eigen::Isometry3d> world_from_camera;  // given pose (imports)
@@ -74,6 +78,10 @@ struct Session {
   std::optional<TurntableInfo> turntable;
   std::vector<std::string> notes;
   std::vector<Frame> frames;
+  // The colour the photos are composited on where the matte is below 255
+  // (a data set's own background: white for NeRF-synthetic), RGB in [0, 1].
+  // Empty: the photos show whatever was behind the object.
+  std::optional<std::array<float, 3>> background;
 
   // Colour intrinsics of a frame: its own, else the colour sensor's.
   std::optional<Intrinsics> color_intrinsics(const Frame& f) const;
@@ -90,6 +98,7 @@ Result<Session> load_session(const std::filesystem::path& dir, SessionLoadOption
 // Frame images (decoded fully: a truncated file is an error naming it).
 Result<ImageU8> load_color(const Session& s, const Frame& f);
 Result<ImageU16> load_depth(const Session& s, const Frame& f);
+Result<ImageU8> load_mask(const Session& s, const Frame& f);  // 1 channel
 
 // Writes session.json atomically (the journal is left as it is).
 Status save_session_json(const Session& s);
@@ -104,7 +113,7 @@ class SessionWriter {
 
   // Writes images (file-then-rename), journals the frame, rewrites session.json.
   // `frame.index` must be next_index(); file names are filled in.
-  Status add_frame(Frame frame, const ImageU8* color, const ImageU16* depth);
+  Status add_frame(Frame frame, const ImageU8* color, const ImageU16* depth, const ImageU8* mask = nullptr);
   int next_index() const { return static_cast<int>(session_.frames.size()); }
   // Store frames without PNG compression (a live capture keeping up with its camera).
   void set_fast_writes(bool fast) { fast_ = fast; }

@@ -76,7 +76,7 @@ Result<Scene> bunny(const fs::path& data_dir) {
   const fs::path ply = data_dir / "stanford_bunny" / "bun_zipper.ply";
   auto mesh = read_ply_mesh(ply);
   if (!mesh)
-    return fail("scene 'bunny' needs " + ply.string() + " (set S2R_DATA or use --scene blob): " +
+    return fail("scene 'bunny' needs " + ply.string() + " (set S2R_DATA, or choose the blob scene): " +
                 mesh.error().message);
   // The scan is y-up; the table is z-up. Stand it on the table, centred on the axis.
   Eigen::Isometry3d up = Eigen::Isometry3d::Identity();

@@ -35,7 +35,7 @@ Result<FramePoses> resolve_frame_poses(const Session& s, const fs::path& poses_f
     if (!c) return std::unexpected(c.error());
     if (!c->axis)
       return fail(ErrorCode::invalid, "'" + calibration_file.string() +
-                                          "' has no turntable axis: run s2r calibrate axis, or give --poses");
+                                          "' has no turntable axis: calibrate its axis (s2r calibrate axis), or give poses");
     for (size_t i = 0; i < s.frames.size(); ++i)
       fp.world_from_camera[i] = c->world_from_camera_at(c->frame_angle_deg(s, i), s.layout);
     fp.kind = PoseSource::calibrated_axis;
@@ -50,7 +50,7 @@ Result<FramePoses> resolve_frame_poses(const Session& s, const fs::path& poses_f
     return fp;
   }
   return fail(ErrorCode::not_found, "session '" + s.root.string() +
-                                        "' has no camera poses: give --poses (s2r register) or --calibration with a "
+                                        "' has no camera poses: give poses (s2r register) or a calibration with a "
                                         "turntable axis");
 }
 

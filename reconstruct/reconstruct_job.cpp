@@ -71,6 +71,7 @@ struct View {
   Eigen::Isometry3d world_from_camera;
   ImageU8 color;
   ImageU16 depth;
+  ImageU8 matte;  // the session's matte of the object, where it has one
 };
 
 // Where the object is, how far the cameras are and how far apart.
@@ -136,10 +137,12 @@ Result<std::vector<View>> load_views(const ReconstructJob& job, const Inputs& in
   };
   std::vector<std::optional<Result<ImageU8>>> colors(s.frames.size());
   std::vector<std::optional<Result<ImageU16>>> depths(s.frames.size());
+  std::vector<std::optional<Result<ImageU8>>> mattes(s.frames.size());
   parallel_for(int(s.frames.size()), job.threads, [&](int k) {
     const size_t i = size_t(k);
     if (!wanted(i)) return;
     if (want_color) colors[i] = load_color(s, s.frames[i]);
+    if (want_color && !s.frames[i].mask.empty()) mattes[i] = load_mask(s, s.frames[i]);
     if (!s.frames[i].depth.empty()) depths[i] = load_depth(s, s.frames[i]);
   });
   std::vector<View> views;
@@ -161,7 +164,7 @@ Result<std::vector<View>> load_views(const ReconstructJob& job, const Inputs& in
     View v;
     v.frame = int(i);
     auto K = resolve_color_intrinsics(s, f, in.calibration());
-    if (!K) return fail("frame " + std::to_string(i) + ": no colour intrinsics (session or --calibration)");
+    if (!K) return fail("frame " + std::to_string(i) + ": no colour intrinsics (session or calibration)");
     v.K = *K;
     v.world_from_camera = *in.poses.world_from_camera[i];
     auto size_differs = [&](const auto& img, const Intrinsics& K, const std::string& file) {
@@ -175,6 +178,12 @@ Result<std::vector<View>> load_views(const ReconstructJob& job, const Inputs& in
       if (!c) return std::unexpected(c.error());
       if (auto st = size_differs(*c, v.K, f.color); !st) return std::unexpected(st.error());
       v.color = std::move(*c);
+      if (mattes[i]) {
+        Result<ImageU8>& m = *mattes[i];
+        if (!m) return std::unexpected(m.error());
+        if (auto st = size_differs(*m, v.K, f.mask); !st) return std::unexpected(st.error());
+        v.matte = std::move(*m);
+      }
     }
     if (!f.depth.empty()) {
       if (!depth_K) return fail("session has depth frames but no depth intrinsics");
@@ -199,14 +208,25 @@ Result<std::vector<View>> load_views(const ReconstructJob& job, const Inputs& in
   return views;
 }
 
-// Silhouettes against a uniform backdrop (object-centre sessions), and the
-// geometry mode `auto` resolves to; what the mode leaves out is reported.
+// Silhouettes: the session's mattes where every view has one (any coverage
+// counts as inside: the hull keeps what a fractional edge pixel shows), else
+// against a uniform backdrop (object-centre sessions); and the geometry mode
+// `auto` resolves to; what the mode leaves out is reported.
 Result<GeometryPlan> plan_geometry(const ReconstructJob& job, const Session& s, const std::vector<View>& views, Report& rep) {
   const bool has_depth = std::any_of(views.begin(), views.end(), [](const View& v) { return !v.depth.empty(); });
   GeometryPlan plan;
   bool masks_ok = s.layout == Layout::kObjectCentre && job.geometry != Geometry::depth;
   double worst_spread = 0;
-  if (masks_ok) {
+  const bool mattes = std::all_of(views.begin(), views.end(), [](const View& v) { return !v.matte.empty(); });
+  if (masks_ok && mattes) {
+    plan.masks.resize(views.size());
+    for (size_t i = 0; i < views.size(); ++i) {
+      plan.masks[i] = views[i].matte;
+      for (auto& a : plan.masks[i].data) a = a ? 255 : 0;
+    }
+    rep.params["silhouettes"] = std::string("matte");
+  } else if (masks_ok) {
+    rep.params["silhouettes"] = std::string("backdrop");
     plan.masks.resize(views.size());
     for (size_t i = 0; i < views.size() && masks_ok; ++i) {
       double spread = 0;
@@ -354,7 +374,7 @@ Result<VoxelChoice> choose_job_voxel(const ReconstructJob& job, const SceneExten
   rep.errors["predicted_texel_error_px"] = e.focal * texel_error_bound(voxel.coarse_m, e.delta) / e.near_distance;
   const size_t max_cells = size_t(4e8);
   if (std::pow(e.box.sizes().maxCoeff() / w0, 3) > double(max_cells) * 64)
-    return fail(fmt::format("voxel {:.3g} m is too small for a {:.3g} m scene (over 2.5e10 cells): choose a larger --voxel",
+    return fail(fmt::format("voxel_m: {:.3g} m is too small for a {:.3g} m scene (over 2.5e10 cells); choose a larger voxel",
                             w0, e.box.sizes().maxCoeff()));
   return voxel;
 }

@@ -415,7 +415,7 @@ Result<Panorama> load_panorama(const fs::path& path, bool clamp, std::vector<std
                                       path.string(), nan, inf, negative, largest));
   }
   auto pano = Panorama::create(std::move(*img));
-  if (!pano) return fail("'" + path.string() + "': " + pano.error().message + (clamp ? "" : " (--clamp replaces such values)"));
+  if (!pano) return fail("'" + path.string() + "': " + pano.error().message + (clamp ? "" : " (clamping replaces such values)"));
   return pano;
 }
 

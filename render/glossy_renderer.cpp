@@ -474,7 +474,7 @@ void report_environment(const PreparedEnvironment& env, Report& rep) {
 }
 
 Result<PreparedEnvironment> prepare_environment(const EnvironmentSetup& setup, const Eigen::AlignedBox3d& bounds) {
-  if (!setup.up.allFinite() || setup.up.norm() == 0) return fail("--up must be a finite non-zero direction");
+  if (!setup.up.allFinite() || setup.up.norm() == 0) return fail("up: must be a finite non-zero direction");
   if (bounds.isEmpty()) return fail("the model has no extent to put a floor under");
   PreparedEnvironment out;
   RtScene scene;
@@ -551,7 +551,7 @@ Result<PreparedEnvironment> prepare_environment(const EnvironmentSetup& setup, c
     map = std::make_shared<const EnvironmentMap>(std::move(*m));
     out.envmap_source = "loaded";
   } else {
-    if (!scene.environment) return fail("a glossy floor or prop needs --panorama (or a prebuilt --envmap)");
+    if (!scene.environment) return fail("panorama: a glossy floor or prop needs a panorama (or a prebuilt environment map)");
     auto m = build_envmap(*scene.environment, setup.envmap_options);
     if (!m) return std::unexpected(m.error());
     map = std::make_shared<const EnvironmentMap>(std::move(*m));

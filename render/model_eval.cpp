@@ -78,7 +78,7 @@ Result<ViewCamera> frame_view(const Model& model, const FrameSource& src, int fr
   if (src.session.empty()) {
     for (const auto& c : model.cameras)
       if (c.session_frame == frame) return ViewCamera{c.intrinsics, c.world_from_camera};
-    return fail(fmt::format("frame {} is not one of the model's cameras (held out?): give --session to take its camera from the session", frame));
+    return fail(fmt::format("session: frame {} is not one of the model's cameras (held out?); its camera comes from a session", frame));
   }
   auto cams = SessionCameras::load(src);
   if (!cams) return std::unexpected(cams.error());
@@ -156,6 +156,9 @@ Result<Renderer> open_model(const fs::path& dir) {
 Status RenderJob::validate() const {
   if (!(scale > 0 && scale <= 8)) return fail(ErrorCode::invalid, "scale: must be in (0, 8]");
   if (!view && view_file.empty()) return fail(ErrorCode::invalid, "view: give a session frame or a view file");
+  if (background)
+    for (float c : *background)
+      if (!(c >= 0 && c <= 1)) return fail(ErrorCode::invalid, "background: each channel must be in [0, 1]");
   return {};
 }
 
@@ -174,6 +177,7 @@ Result<Report> run_render_job(const RenderJob& job) {
   Report rep;
   rep.stage = "render";
   DrawOptions draw = job.draw;
+  if (job.background) std::copy(job.background->begin(), job.background->end(), draw.background);
   PreparedEnvironment env;
   if (job.environment) {
     auto e = prepare_environment(*job.environment, r->model.bounds);
@@ -225,32 +229,53 @@ std::vector<EvalMethod> eval_methods(const EvalJob& job, const ModelRenderer& re
   return methods;
 }
 
-// A frame's photo, the object's pixels in it and the backdrop's colour.
+// A frame's photo on the evaluation's background, the object's pixels in it.
 struct EvalPhoto {
   ImageU8 photo, object;
   std::string mask_source = "whole_image";
-  float background[3] = {0, 0, 0};
+  std::array<float, 3> background{0, 0, 0};
 };
 
-Result<EvalPhoto> eval_photo(const Session& s, int frame, const Intrinsics& K) {
-  auto photo = load_color(s, s.frames[size_t(frame)]);
+// The background: asked for, else the session's, else the backdrop's colour
+// (object-centre sessions), else black. A photo with a matte composited on a
+// session background is moved onto the asked one: photo + (b' - b)(1 - alpha).
+Result<EvalPhoto> eval_photo(const Session& s, int frame, const Intrinsics& K, const std::optional<std::array<float, 3>>& asked) {
+  const Frame& f = s.frames[size_t(frame)];
+  auto photo = load_color(s, f);
   if (!photo) return std::unexpected(photo.error());
   if (photo->width != K.width || photo->height != K.height)
     return fail(fmt::format("frame {}: photo is {}x{}, its camera {}x{}", frame, photo->width, photo->height, K.width, K.height));
   EvalPhoto e;
   e.photo = std::move(*photo);
   e.object = ImageU8(e.photo.width, e.photo.height, 1, 255);
-  const fs::path truth = s.root / "ground_truth" / "depth_color" / fmt::format("{:04d}.exr", frame);
-  if (s.layout == Layout::kObjectCentre) {
-    const Backdrop b = border_backdrop(e.photo);
-    for (int c = 0; c < 3 && c < int(b.color.size()); ++c) e.background[c] = float(b.color[size_t(c)]) / 255.f;
+  std::optional<ImageU8> matte;
+  if (!f.mask.empty()) {
+    auto m = load_mask(s, f);
+    if (!m) return std::unexpected(m.error());
+    matte = std::move(*m);
   }
+  if (asked) e.background = *asked;
+  else if (s.background) e.background = *s.background;
+  else if (s.layout == Layout::kObjectCentre) {
+    const Backdrop b = border_backdrop(e.photo);
+    for (size_t c = 0; c < 3 && c < b.color.size(); ++c) e.background[c] = float(b.color[c]) / 255.f;
+  }
+  if (matte && s.background && e.background != *s.background)
+    for (size_t i = 0; i < e.photo.pixels(); ++i)
+      for (size_t c = 0; c < 3; ++c) {
+        const float shift = (e.background[c] - (*s.background)[c]) * 255.f * (255 - matte->data[i]) / 255.f;
+        e.photo.data[i * 3 + c] = uint8_t(std::clamp(std::lround(e.photo.data[i * 3 + c] + shift), 0L, 255L));
+      }
+  const fs::path truth = s.root / "ground_truth" / "depth_color" / fmt::format("{:04d}.exr", frame);
   if (fs::exists(truth)) {
     auto d = read_image_float(truth);
     if (!d) return std::unexpected(d.error());
     for (size_t i = 0; i < e.object.pixels() && i < d->pixels(); ++i)
       e.object.data[i] = d->data[i * size_t(d->channels)] > 0 ? 255 : 0;
     e.mask_source = "ground_truth";
+  } else if (matte) {
+    for (size_t i = 0; i < e.object.pixels(); ++i) e.object.data[i] = matte->data[i] ? 255 : 0;
+    e.mask_source = "matte";
   } else if (s.layout == Layout::kObjectCentre) {
     if (auto m = backdrop_mask(e.photo)) e.object = std::move(*m), e.mask_source = "backdrop";
   }
@@ -259,12 +284,13 @@ Result<EvalPhoto> eval_photo(const Session& s, int frame, const Intrinsics& K) {
 
 // Every method's figures over the frames, for the means.
 struct EvalSeries {
-  std::map<std::string, std::vector<double>> psnr, ssim, frame_ms, coverage, psnr_held, psnr_input;
+  std::map<std::string, std::vector<double>> psnr, ssim, full_psnr, full_ssim, frame_ms, coverage, psnr_held, psnr_input,
+      full_psnr_held;
 };
 
-// One frame drawn by every method and compared with its photo over the
-// object's pixels joined with every drawn pixel: a row of eval.csv, the
-// strip PNG (photo | methods), the figures into `series`.
+// One frame drawn by every method and compared with its photo, over the
+// whole image and over the object's pixels joined with every drawn pixel: a
+// row of eval.csv, the strip PNG (photo | methods), the figures into `series`.
 Status eval_frame(const EvalJob& job, const Renderer& m, const ViewCamera& view, int frame, bool held,
                   std::vector<EvalMethod>& methods, const EvalPhoto& e, EvalSeries& series, SweepTable& table,
                   Report& rep) {
@@ -273,7 +299,7 @@ Status eval_frame(const EvalJob& job, const Renderer& m, const ViewCamera& view,
   auto fb = Framebuffer::create(view.K.width, view.K.height);
   if (!fb) return std::unexpected(fb.error());
   for (auto& method : methods) {
-    std::copy(e.background, e.background + 3, method.draw.background);
+    std::copy(e.background.begin(), e.background.end(), method.draw.background);
     auto st = m.renderer->draw(view, method.draw, *fb);
     if (!st) return std::unexpected(st.error());
     drawn.push_back(fb->read_rgba());
@@ -298,62 +324,98 @@ Status eval_frame(const EvalJob& job, const Renderer& m, const ViewCamera& view,
     paste(rgb, int(k) + 1);
     auto p = psnr(rgb, e.photo, &mask);
     auto q = ssim(rgb, e.photo, &mask);
-    if (!p || !q) return fail(fmt::format("frame {}: {}", frame, (!p ? p.error() : q.error()).message));
+    auto fp = psnr(rgb, e.photo);
+    auto fq = ssim(rgb, e.photo);
+    for (const auto* r : {&p, &q, &fp, &fq})
+      if (!*r) return fail(fmt::format("frame {}: {}", frame, r->error().message));
     size_t covered = 0;
     for (size_t i = 0; i < e.object.pixels(); ++i) covered += e.object.data[i] && drawn[k].data[i * 4 + 3];
     const double cov = object_px ? double(covered) / double(object_px) : 0.0;
     const std::string& n = methods[k].name;
     series.psnr[n].push_back(*p), series.ssim[n].push_back(*q), series.frame_ms[n].push_back(stats[k].frame_ms);
+    series.full_psnr[n].push_back(*fp), series.full_ssim[n].push_back(*fq);
     series.coverage[n].push_back(cov);
     (held ? series.psnr_held : series.psnr_input)[n].push_back(*p);
+    if (held) series.full_psnr_held[n].push_back(*fp);
     rep.errors[fmt::format("psnr_db_{}_frame_{:04d}", n, frame)] = *p;
-    for (double x : {*p, *q, cov, stats[k].frame_ms}) row.push_back(x);
+    rep.errors[fmt::format("full_psnr_db_{}_frame_{:04d}", n, frame)] = *fp;
+    for (double x : {*p, *q, cov, stats[k].frame_ms, *fp, *fq}) row.push_back(x);
     if (k == 0) add_selection(rep, stats[k], fmt::format("_frame_{:04d}", frame));
   }
   table.rows.push_back(row);
   return write_image(job.out / fmt::format("frame_{:04d}.png", frame), strip);
 }
 
-// The means over the frames per method, and each baseline's difference.
-void eval_summary(const EvalJob& job, const std::vector<EvalMethod>& methods, EvalSeries& series, Report& rep) {
-  auto mean = [](const std::vector<double>& v) {
-    double s = 0;
-    for (double x : v) s += x;
-    return v.empty() ? 0.0 : s / double(v.size());
-  };
+double mean_of(const std::vector<double>& v) {
+  double s = 0;
+  for (double x : v) s += x;
+  return v.empty() ? 0.0 : s / double(v.size());
+}
+
+// The means over the frames per method, typed, and in the report with each
+// baseline's difference.
+void eval_summary(const EvalJob& job, const std::vector<EvalMethod>& methods, EvalSeries& series, EvalSummary& sum) {
+  Report& rep = sum.report;
   for (const auto& m : methods) {
     const std::string& n = m.name;
-    rep.errors["psnr_db_" + n] = mean(series.psnr[n]);
-    rep.errors["ssim_" + n] = mean(series.ssim[n]);
-    rep.counts["coverage_" + n] = mean(series.coverage[n]);
-    rep.counts["frame_ms_" + n] = mean(series.frame_ms[n]);
-    if (!series.psnr_held[n].empty()) rep.errors["psnr_db_" + n + "_held_out"] = mean(series.psnr_held[n]);
-    if (!series.psnr_input[n].empty()) rep.errors["psnr_db_" + n + "_input_views"] = mean(series.psnr_input[n]);
+    EvalMethodFigures f;
+    f.name = n;
+    f.psnr_db = mean_of(series.psnr[n]), f.ssim = mean_of(series.ssim[n]);
+    f.full_psnr_db = mean_of(series.full_psnr[n]), f.full_ssim = mean_of(series.full_ssim[n]);
+    f.coverage = mean_of(series.coverage[n]), f.frame_ms = mean_of(series.frame_ms[n]);
+    if (!series.psnr_held[n].empty()) f.psnr_db_held_out = mean_of(series.psnr_held[n]);
+    if (!series.full_psnr_held[n].empty()) f.full_psnr_db_held_out = mean_of(series.full_psnr_held[n]);
+    if (!series.psnr_input[n].empty()) f.psnr_db_input_views = mean_of(series.psnr_input[n]);
+    rep.errors["psnr_db_" + n] = f.psnr_db;
+    rep.errors["ssim_" + n] = f.ssim;
+    rep.errors["full_psnr_db_" + n] = f.full_psnr_db;
+    rep.errors["full_ssim_" + n] = f.full_ssim;
+    rep.counts["coverage_" + n] = f.coverage;
+    rep.counts["frame_ms_" + n] = f.frame_ms;
+    if (f.psnr_db_held_out) rep.errors["psnr_db_" + n + "_held_out"] = *f.psnr_db_held_out;
+    if (f.full_psnr_db_held_out) rep.errors["full_psnr_db_" + n + "_held_out"] = *f.full_psnr_db_held_out;
+    if (f.psnr_db_input_views) rep.errors["psnr_db_" + n + "_input_views"] = *f.psnr_db_input_views;
+    sum.methods.push_back(std::move(f));
   }
-  if (series.psnr.count("hybrid")) {
-    rep.errors["hybrid_over_billboards_db"] = rep.errors["psnr_db_hybrid"] - rep.errors["psnr_db_billboards"];
+  if (auto g = sum.gain_db("hybrid", "billboards")) {
+    rep.errors["hybrid_over_billboards_db"] = *g;
     rep.params["mesh_reliability"] = job.draw.mesh_reliability;
   }
-  if (series.psnr.count("no_clip")) rep.errors["depth_clip_gain_db"] = rep.errors["psnr_db_billboards"] - rep.errors["psnr_db_no_clip"];
+  if (auto g = sum.gain_db("billboards", "no_clip")) rep.errors["depth_clip_gain_db"] = *g;
   for (const std::string n : {"mesh", "surface"}) {
-    if (!series.psnr.count(n)) continue;
-    rep.errors["billboards_over_" + n + "_db"] = rep.errors["psnr_db_billboards"] - rep.errors["psnr_db_" + n];
-    if (!series.psnr_held[n].empty())
-      rep.errors["billboards_over_" + n + "_held_out_db"] = mean(series.psnr_held["billboards"]) - mean(series.psnr_held[n]);
+    if (auto g = sum.gain_db("billboards", n)) rep.errors["billboards_over_" + n + "_db"] = *g;
+    if (auto g = sum.gain_db("billboards", n, true)) rep.errors["billboards_over_" + n + "_held_out_db"] = *g;
   }
 }
 
 }  // namespace
 
+const EvalMethodFigures* EvalSummary::method(std::string_view name) const {
+  for (const auto& m : methods)
+    if (m.name == name) return &m;
+  return nullptr;
+}
+
+std::optional<double> EvalSummary::gain_db(std::string_view a, std::string_view b, bool held_out) const {
+  const EvalMethodFigures *x = method(a), *y = method(b);
+  if (!x || !y) return std::nullopt;
+  if (!held_out) return x->psnr_db - y->psnr_db;
+  if (!x->psnr_db_held_out || !y->psnr_db_held_out) return std::nullopt;
+  return *x->psnr_db_held_out - *y->psnr_db_held_out;
+}
+
 Status EvalJob::validate() const {
   if (frames.empty()) return fail(ErrorCode::invalid, "frames: give the frames to evaluate");
   if (source.session.empty()) return fail(ErrorCode::invalid, "session: is needed, the photos come from it");
+  if (background)
+    for (float c : *background)
+      if (!(c >= 0 && c <= 1)) return fail(ErrorCode::invalid, "background: each channel must be in [0, 1]");
   return {};
 }
 
 // Open the model and the session's cameras; per frame, the photo and every
 // method's drawing compared with it; the means; eval.csv.
-Result<Report> run_eval_job(const EvalJob& job) {
+Result<EvalSummary> run_eval_job(const EvalJob& job) {
   Stopwatch clock;
   if (auto st = job.validate(); !st) return std::unexpected(st.error());
   auto r = open_model(job.model);
@@ -368,40 +430,48 @@ Result<Report> run_eval_job(const EvalJob& job) {
   if (ec) return fail("cannot create " + job.out.string() + ": " + ec.message());
 
   std::vector<EvalMethod> methods = eval_methods(job, *r->renderer);
-  Report rep;
+  EvalSummary sum;
+  Report& rep = sum.report;
   rep.stage = "eval";
   SweepTable table;
   table.columns = {"frame", "held_out", "mask_pixels"};
   for (const auto& m : methods)
-    for (const char* q : {"psnr_db_", "ssim_", "coverage_", "frame_ms_"}) table.columns.push_back(q + m.name);
+    for (const char* q : {"psnr_db_", "ssim_", "coverage_", "frame_ms_", "full_psnr_db_", "full_ssim_"})
+      table.columns.push_back(q + m.name);
   EvalSeries series;
   Progress progress("eval", job.frames.size());
   for (int frame : job.frames) {
     auto view = cameras->view(frame);
     if (!view) return std::unexpected(view.error());
-    auto photo = eval_photo(s, frame, view->K);
+    auto photo = eval_photo(s, frame, view->K, job.background);
     if (!photo) return std::unexpected(photo.error());
-    rep.params["mask"] = photo->mask_source;
+    sum.mask_source = photo->mask_source;
+    sum.background = photo->background;
     const bool held = !in_model.count(frame);
     if (auto st = eval_frame(job, *r, *view, frame, held, methods, *photo, series, table, rep); !st)
       return std::unexpected(st.error());
     progress.tick();
   }
   progress.done();
-  eval_summary(job, methods, series, rep);
+  eval_summary(job, methods, series, sum);
   if (!job.baselines) rep.skipped["baselines_not_asked"] = 1;
   else {
     if (!r->renderer->has_mesh(DrawOptions::Geometry::kMesh)) rep.skipped["mesh_baseline_no_patch_mesh"] = 1;
     if (!r->renderer->has_mesh(DrawOptions::Geometry::kSurface)) rep.skipped["surface_baseline_no_surface_mesh"] = 1;
   }
-  rep.counts["views"] = double(job.frames.size());
-  rep.counts["held_out_views"] = double(std::count_if(job.frames.begin(), job.frames.end(), [&](int f) { return !in_model.count(f); }));
-  rep.counts["facets"] = double(r->model.facets.size());
+  sum.views = job.frames.size();
+  sum.held_out_views = size_t(std::count_if(job.frames.begin(), job.frames.end(), [&](int f) { return !in_model.count(f); }));
+  sum.facets = r->model.facets.size();
+  rep.counts["views"] = double(sum.views);
+  rep.counts["held_out_views"] = double(sum.held_out_views);
+  rep.counts["facets"] = double(sum.facets);
+  rep.params["mask"] = sum.mask_source;
+  rep.params["background"] = fmt::format("{:.3g},{:.3g},{:.3g}", sum.background[0], sum.background[1], sum.background[2]);
   rep.params["cameras"] = double(job.draw.selection.cameras);
   rep.params["renderer"] = r->context->describe();
   if (auto w = table.write_csv(job.out / "eval.csv"); !w) return std::unexpected(w.error());
-  rep.seconds = clock.seconds();
-  return rep;
+  sum.seconds = rep.seconds = clock.seconds();
+  return sum;
 }
 
 Result<std::vector<FrameTiming>> time_orbit(const fs::path& model_dir, const std::vector<DrawOptions>& draws, int width,

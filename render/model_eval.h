@@ -4,16 +4,24 @@
 // Evaluation at a frame (held out at reconstruct or an input view): the
 // model is drawn three ways in one run — billboards with depth clipping (the
 // product), billboards without it, and the textured patch mesh (the
-// baseline) — against the same background: the photo's backdrop colour for
-// object-centre sessions, black otherwise. PSNR and SSIM are taken over one
-// mask for all three: the object's pixels (the rig's ground truth, else the
-// backdrop mask, else the whole image) joined with every pixel any of them
-// drew, so drawing onto the background is an error too.
+// baseline) — against the same background: the one asked for, else the
+// session's own (a data set's, e.g. white for NeRF-synthetic), else the
+// photo's backdrop colour for object-centre sessions, black otherwise. A
+// photo with a matte is composited on that background too. Two figures per
+// method:
+//   - full image, as the field reports novel views (PSNR and SSIM over every
+//     pixel, the model drawn on the background);
+//   - masked: over the object's pixels (the rig's ground truth, else the
+//     session's matte, else the backdrop mask, else the whole image) joined
+//     with every pixel any method drew, so drawing onto the background is an
+//     error too.
 #pragma once
 
+#include <array>
 #include <filesystem>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "core/report.h"
@@ -55,6 +63,8 @@ Result<ViewCamera> frame_view(const Model& model, const FrameSource& source, int
 
 struct RenderJob {
   std::filesystem::path model;
+  // The image's background (RGB in [0, 1]); empty: the draw options' own.
+  std::optional<std::array<float, 3>> background;
   std::filesystem::path out;  // PNG
   std::optional<int> view;    // a session frame
   std::filesystem::path view_file;
@@ -75,11 +85,43 @@ struct EvalJob {
   std::filesystem::path out;  // folder: per-view strips, eval.csv, report.json
   DrawOptions draw;
   bool baselines = true;      // billboards without clipping and the mesh, in the same run
+  // RGB in [0, 1]; empty: the session's background, else the backdrop's colour, else black.
+  std::optional<std::array<float, 3>> background;
 
   // The options' own needs, an error naming the field ("frames: ...").
   Status validate() const;
 };
-Result<Report> run_eval_job(const EvalJob& job);
+
+// One way of drawing the model (billboards, hybrid, no_clip, mesh, surface),
+// its figures averaged over the evaluated frames.
+struct EvalMethodFigures {
+  std::string name;
+  double psnr_db = 0, ssim = 0;            // masked: the object's and every drawn pixel
+  double full_psnr_db = 0, full_ssim = 0;  // the whole image on the background
+  double coverage = 0;                     // share of the object's pixels drawn
+  double frame_ms = 0;
+  std::optional<double> psnr_db_held_out, psnr_db_input_views;  // masked, over those frames only
+  std::optional<double> full_psnr_db_held_out;
+};
+
+// What run_eval_job measured, typed; report.json adds each frame's figures
+// and the billboards' selection counts (to_report()).
+struct EvalSummary {
+  std::vector<EvalMethodFigures> methods;  // billboards first
+  size_t views = 0, held_out_views = 0, facets = 0;
+  std::string mask_source;                 // ground_truth, matte, backdrop or whole_image
+  std::array<float, 3> background{};       // of the last frame
+  double seconds = 0;
+  Report report;
+
+  const EvalMethodFigures* method(std::string_view name) const;
+  // a's masked PSNR minus b's (over the held-out frames only with `held_out`);
+  // empty when either was not drawn (or no frame was held out).
+  std::optional<double> gain_db(std::string_view a, std::string_view b, bool held_out = false) const;
+  const Report& to_report() const { return report; }
+  std::string brief() const { return report.brief(); }
+};
+Result<EvalSummary> run_eval_job(const EvalJob& job);
 
 // Frame time on a moving view: `frames` frames of width x height around the
 // model's default orbit (render/viewer.h), each turned by 360/frames deg.

@@ -460,7 +460,7 @@ Result<std::unique_ptr<ModelRenderer>> ModelRenderer::create(const Model& model,
     r->texture_width_ = std::max(r->texture_width_, tex[i].rgba.width);
     r->texture_height_ = std::max(r->texture_height_, tex[i].rgba.height);
   }
-  if (layers == 0) return fail("the model has no camera textures (reconstructed with --no-textures?): nothing to texture facets with");
+  if (layers == 0) return fail("the model has no camera textures (reconstructed without textures?): nothing to texture facets with");
   GLint max_layers = 0;
   glGetIntegerv(GL_MAX_ARRAY_TEXTURE_LAYERS, &max_layers);
   if (layers > max_layers) return fail(fmt::format("{} camera textures, the OpenGL driver allows {} layers", layers, max_layers));
@@ -591,6 +591,34 @@ ModelRenderer::~ModelRenderer() {
   if (distance_array_) glDeleteTextures(1, &distance_array_);
 }
 
+// One draw's view, options and depth range, shared by its passes.
+struct ModelRenderer::Pass {
+  const ViewCamera& view;
+  const DrawOptions& o;
+  float near_m = 0, far_m = 0;
+};
+
+namespace {
+
+// Near and far planes from the model's bounds (and the environment's) as
+// seen from the eye.
+std::pair<float, float> depth_range(const Model& model, const ViewCamera& view, const DrawOptions& o) {
+  const Eigen::Vector3d eye = view.eye();
+  double far_m = 0;
+  for (int c = 0; c < 8; ++c) far_m = std::max(far_m, (model.bounds.corner(Eigen::AlignedBox3d::CornerType(c)) - eye).norm());
+  Eigen::AlignedBox3d drawn = model.bounds;
+  if (o.environment && !o.environment->bounds().isEmpty()) {
+    drawn.extend(o.environment->bounds());
+    for (int c = 0; c < 8; ++c) far_m = std::max(far_m, (drawn.corner(Eigen::AlignedBox3d::CornerType(c)) - eye).norm());
+  }
+  far_m = std::min(std::max(far_m * 1.05, 1e-3), o.far_m);
+  const double outside = drawn.exteriorDistance(eye);
+  const float near_m = float(std::clamp(0.5 * outside, std::max(far_m * 1e-5, 1e-5), std::max(o.near_m, far_m * 1e-5)));
+  return {near_m, float(far_m)};
+}
+
+}  // namespace
+
 Result<DrawStats> ModelRenderer::draw(const ViewCamera& view, const DrawOptions& o, const Framebuffer& target) {
   if (view.K.width != target.width() || view.K.height != target.height())
     return fail(fmt::format("view is {}x{} but the target is {}x{}", view.K.width, view.K.height, target.width(), target.height()));
@@ -600,29 +628,43 @@ Result<DrawStats> ModelRenderer::draw(const ViewCamera& view, const DrawOptions&
     return fail(o.geometry == DrawOptions::Geometry::kMesh ? "the model has no patch mesh to draw" : "the model has no fused surface mesh to draw");
   Stopwatch clock;
   DrawStats st;
-  // Depth range from the model's bounds as seen from the eye.
-  const Eigen::Vector3d eye = view.eye();
-  double far_m = 0;
-  for (int c = 0; c < 8; ++c) far_m = std::max(far_m, (model_.bounds.corner(Eigen::AlignedBox3d::CornerType(c)) - eye).norm());
-  Eigen::AlignedBox3d drawn = model_.bounds;
-  if (o.environment && !o.environment->bounds().isEmpty()) {
-    drawn.extend(o.environment->bounds());
-    for (int c = 0; c < 8; ++c) far_m = std::max(far_m, (drawn.corner(Eigen::AlignedBox3d::CornerType(c)) - eye).norm());
+  Pass pass{view, o};
+  std::tie(pass.near_m, pass.far_m) = depth_range(model_, view, o);
+  if (auto c = clear_and_environment(pass, target, st); !c) return std::unexpected(c.error());
+  bind_model_state();
+  if (o.geometry == DrawOptions::Geometry::kBillboards) {
+    draw_billboards(pass, st);
+  } else {
+    const GpuMesh& g = meshes_[o.geometry == DrawOptions::Geometry::kSurface ? 1 : 0];
+    draw_mesh(pass, g, g.triangles, false, st);
   }
-  far_m = std::min(std::max(far_m * 1.05, 1e-3), o.far_m);
-  const double outside = drawn.exteriorDistance(eye);
-  const float near_m = float(std::clamp(0.5 * outside, std::max(far_m * 1e-5, 1e-5), std::max(o.near_m, far_m * 1e-5)));
+  glBindVertexArray(0);
+  st.cpu_ms = clock.seconds() * 1e3;
+  glFinish();
+  st.frame_ms = clock.seconds() * 1e3;
+  if (const GLenum e = glGetError(); e != GL_NO_ERROR) return fail(fmt::format("OpenGL error 0x{:x} while drawing", e));
+  return st;
+}
 
+// The target cleared to the background (alpha 0), then the environment
+// (backdrop, glossy floor and props) into the same depth buffer.
+Status ModelRenderer::clear_and_environment(const Pass& pass, const Framebuffer& target, DrawStats& st) {
   target.bind();
-  glClearColor(o.background[0], o.background[1], o.background[2], 0.f);
+  glClearColor(pass.o.background[0], pass.o.background[1], pass.o.background[2], 0.f);
   glClearDepth(1.0);
   glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
-  if (o.environment) {
-    auto env = o.environment->draw_into_bound(eye, screen_for_view(view.K, view.world_from_camera), near_m, far_m);
-    if (!env) return std::unexpected(with_context(env.error(), "environment"));
-    st.environment_drawn = true;
-    st.envmap_bound = env->envmap_bound;
-  }
+  if (!pass.o.environment) return {};
+  auto env = pass.o.environment->draw_into_bound(pass.view.eye(), screen_for_view(pass.view.K, pass.view.world_from_camera),
+                                                 pass.near_m, pass.far_m);
+  if (!env) return std::unexpected(with_context(env.error(), "environment"));
+  st.environment_drawn = true;
+  st.envmap_bound = env->envmap_bound;
+  return {};
+}
+
+// Depth test on, no blending; the camera textures and the facet and camera
+// buffers bound where both programs read them.
+void ModelRenderer::bind_model_state() const {
   glEnable(GL_DEPTH_TEST);
   glDepthFunc(GL_LESS);
   glDisable(GL_CULL_FACE);
@@ -633,112 +675,112 @@ Result<DrawStats> ModelRenderer::draw(const ViewCamera& view, const DrawOptions&
   glBindTexture(GL_TEXTURE_2D_ARRAY, distance_array_);
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, facet_ssbo_);
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, camera_ssbo_);
+}
 
-  auto use = [&](const GlProgram& p) {
-    glUseProgram(p.id());
-    set_view_uniforms(p, view, near_m, float(far_m));
-    glUniform1i(p.uniform("u_color"), 0);
-    glUniform1i(p.uniform("u_dist"), 1);
-    glUniform2f(p.uniform("u_tex_size"), float(texture_width_), float(texture_height_));
-    glUniform1i(p.uniform("u_by_camera"), o.color_by_camera ? 1 : 0);
-  };
-  // `nearest`: the mesh's fragments ask only the k+1 input cameras whose
-  // axes are nearest the view's (the k best by angle at a fragment, but
-  // near the silhouette or for a wide field of view), not every camera:
-  // bench render measured k+1 both faster and no less sharp than 2k+2.
-  auto draw_mesh = [&](const GpuMesh& g, size_t triangles, bool nearest) {
-    const GlProgram& p = programs_->mesh;
-    use(p);
-    const int k = std::clamp(o.selection.cameras, 1, kMaxBlendCameras);
-    std::vector<int> list;
-    if (nearest) {
-      const Eigen::Vector3d z = view.world_from_camera.linear().col(2);
-      std::vector<std::pair<double, int>> by_angle;
-      for (size_t i = 0; i < model_.cameras.size(); ++i)
-        if (!model_.cameras[i].texture.empty())
-          by_angle.push_back({angle_between(z, model_.cameras[i].world_from_camera.linear().col(2)), int(i)});
-      const size_t m = std::min<size_t>({by_angle.size(), size_t(k + 1), 16});
-      std::partial_sort(by_angle.begin(), by_angle.begin() + std::ptrdiff_t(m), by_angle.end());
-      for (size_t i = 0; i < m; ++i) list.push_back(by_angle[i].second);
-    }
-    glUniform1i(p.uniform("u_use_list"), nearest ? 1 : 0);
-    if (nearest && !list.empty()) glUniform1iv(p.uniform("u_cam_list[0]"), GLsizei(list.size()), list.data());
-    glUniform1i(p.uniform("u_camera_count"), nearest ? int(list.size()) : int(model_.cameras.size()));
-    glUniform1i(p.uniform("u_k"), k);
-    // The patch mesh lies within about a voxel of the surface the distances
-    // were cast against; twice that counts as visible.
-    glUniform1f(p.uniform("u_tol"), float(2 * model_.voxel_size_m));
-    glUniform1i(p.uniform("u_flat"), 0);
-    if (o.wireframe) glPolygonMode(GL_FRONT_AND_BACK, GL_LINE);
-    glBindVertexArray(g.vao);
-    if (nearest && !o.wireframe) {
-      // Depth first (the triangles come in reliability order, not front to
-      // back), then each covered pixel is shaded once.
-      glColorMask(GL_FALSE, GL_FALSE, GL_FALSE, GL_FALSE);
-      glUniform1i(p.uniform("u_flat"), 1);
-      glDrawElements(GL_TRIANGLES, GLsizei(triangles * 3), GL_UNSIGNED_INT, nullptr);
-      glColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
-      glUniform1i(p.uniform("u_flat"), 0);
-      glDepthFunc(GL_LEQUAL);
-    }
+void ModelRenderer::use_program(const GlProgram& p, const Pass& pass) const {
+  glUseProgram(p.id());
+  set_view_uniforms(p, pass.view, pass.near_m, pass.far_m);
+  glUniform1i(p.uniform("u_color"), 0);
+  glUniform1i(p.uniform("u_dist"), 1);
+  glUniform2f(p.uniform("u_tex_size"), float(texture_width_), float(texture_height_));
+  glUniform1i(p.uniform("u_by_camera"), pass.o.color_by_camera ? 1 : 0);
+}
+
+// The k+1 input cameras whose axes are nearest the view's (at most 16).
+std::vector<int> ModelRenderer::nearest_cameras(const ViewCamera& view, int k) const {
+  const Eigen::Vector3d z = view.world_from_camera.linear().col(2);
+  std::vector<std::pair<double, int>> by_angle;
+  for (size_t i = 0; i < model_.cameras.size(); ++i)
+    if (!model_.cameras[i].texture.empty())
+      by_angle.push_back({angle_between(z, model_.cameras[i].world_from_camera.linear().col(2)), int(i)});
+  const size_t m = std::min<size_t>({by_angle.size(), size_t(k + 1), 16});
+  std::partial_sort(by_angle.begin(), by_angle.begin() + std::ptrdiff_t(m), by_angle.end());
+  std::vector<int> list;
+  for (size_t i = 0; i < m; ++i) list.push_back(by_angle[i].second);
+  return list;
+}
+
+// `nearest`: the mesh's fragments ask only the k+1 input cameras whose axes
+// are nearest the view's (the k best by angle at a fragment, but near the
+// silhouette or for a wide field of view), not every camera: bench render
+// measured k+1 both faster and no less sharp than 2k+2.
+void ModelRenderer::draw_mesh(const Pass& pass, const GpuMesh& g, size_t triangles, bool nearest, DrawStats& st) const {
+  const DrawOptions& o = pass.o;
+  const GlProgram& p = programs_->mesh;
+  use_program(p, pass);
+  const int k = std::clamp(o.selection.cameras, 1, kMaxBlendCameras);
+  const std::vector<int> list = nearest ? nearest_cameras(pass.view, k) : std::vector<int>{};
+  glUniform1i(p.uniform("u_use_list"), nearest ? 1 : 0);
+  if (nearest && !list.empty()) glUniform1iv(p.uniform("u_cam_list[0]"), GLsizei(list.size()), list.data());
+  glUniform1i(p.uniform("u_camera_count"), nearest ? int(list.size()) : int(model_.cameras.size()));
+  glUniform1i(p.uniform("u_k"), k);
+  // The patch mesh lies within about a voxel of the surface the distances
+  // were cast against; twice that counts as visible.
+  glUniform1f(p.uniform("u_tol"), float(2 * model_.voxel_size_m));
+  glUniform1i(p.uniform("u_flat"), 0);
+  if (o.wireframe) glPolygonMode(GL_FRONT_AND_BACK, GL_LINE);
+  glBindVertexArray(g.vao);
+  if (nearest && !o.wireframe) {
+    // Depth first (the triangles come in reliability order, not front to
+    // back), then each covered pixel is shaded once.
+    glColorMask(GL_FALSE, GL_FALSE, GL_FALSE, GL_FALSE);
+    glUniform1i(p.uniform("u_flat"), 1);
     glDrawElements(GL_TRIANGLES, GLsizei(triangles * 3), GL_UNSIGNED_INT, nullptr);
-    glDepthFunc(GL_LESS);
-    if (o.wireframe) glPolygonMode(GL_FRONT_AND_BACK, GL_FILL);
-    st.triangles = triangles;
-  };
-  if (o.geometry == DrawOptions::Geometry::kBillboards) {
-    SelectionOptions so = o.selection;
-    so.near_m = near_m;
-    LodOptions lo = o.lod;
-    lo.backface_cos = so.backface_cos;
-    if (!so.frustum_cull || !so.backface_cull) lo.enabled = false;  // "draw everything" means every model facet
-    st.lod = hierarchy_.select(view, lo, near_m, candidates_);
-    // Reliable geometry from the patch mesh: its triangles at or above the
-    // threshold first (a prefix, most reliable first), and the billboards of
-    // facets that reliable left out.
-    if (o.mesh_reliability > 0 && has_mesh()) {
-      const float R = float(o.mesh_reliability);
-      const size_t n = size_t(std::partition_point(triangle_reliability_.begin(), triangle_reliability_.end(),
-                                                   [&](float r) { return r >= R; }) -
-                              triangle_reliability_.begin());
-      if (n) draw_mesh(meshes_[0], n, true);
-      const auto& least = hierarchy_.least_reliability();
-      const size_t before = candidates_.size();
-      std::erase_if(candidates_, [&](uint32_t i) { return least[i] >= R; });
-      st.facets_on_mesh = before - candidates_.size();
-    }
-    const GlProgram& p = programs_->billboard;
-    use(p);
-    st.selection = select_facets(FacetSet{hierarchy_.facets(), hierarchy_.facet_cameras(), &candidates_}, model_.cameras,
-                                 view, so, instances_);
-    st.selection.facets = model_.facets.size();
-    const Eigen::Vector3d up = -view.world_from_camera.linear().col(1);
-    glUniform3f(p.uniform("u_up"), float(up.x()), float(up.y()), float(up.z()));
-    glUniform1f(p.uniform("u_scale"), float(std::max(o.billboard_scale, std::sqrt(3.0))));
-    glUniform1i(p.uniform("u_clip"), o.depth_clip ? 1 : 0);
-    glUniform1f(p.uniform("u_clip_scale"), float(o.clip_scale));
-    glUniform1i(p.uniform("u_probe"), nearest_camera(model_, view));
-    glUniform1i(p.uniform("u_refine"), std::max(0, o.refine_steps));
-    // In a silhouette-only model the hull is the geometry, and clipping against it is meaningful.
-    glUniform1i(p.uniform("u_clip_fuzzy"), o.clip_fuzzy || !has_reliable_ ? 1 : 0);
-    const Eigen::Vector3d fwd = view.world_from_camera.linear().col(2);
-    glUniform3f(p.uniform("u_view_forward"), float(fwd.x()), float(fwd.y()), float(fwd.z()));
-    glUniform1f(p.uniform("u_view_focal"), float(std::sqrt(view.K.fx * view.K.fy)));
-    glUniform1f(p.uniform("u_px_error"), float(std::max(0.0, o.pixel_error)));
-    glBindVertexArray(billboard_vao_);
-    glBindBuffer(GL_ARRAY_BUFFER, instance_vbo_);
-    glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(instances_.size() * sizeof(FacetInstance)), instances_.data(), GL_STREAM_DRAW);
-    if (!instances_.empty()) glDrawArraysInstanced(GL_TRIANGLE_STRIP, 0, 4, GLsizei(instances_.size()));
-  } else {
-    const GpuMesh& g = meshes_[o.geometry == DrawOptions::Geometry::kSurface ? 1 : 0];
-    draw_mesh(g, g.triangles, false);
+    glColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
+    glUniform1i(p.uniform("u_flat"), 0);
+    glDepthFunc(GL_LEQUAL);
   }
-  glBindVertexArray(0);
-  st.cpu_ms = clock.seconds() * 1e3;
-  glFinish();
-  st.frame_ms = clock.seconds() * 1e3;
-  if (const GLenum e = glGetError(); e != GL_NO_ERROR) return fail(fmt::format("OpenGL error 0x{:x} while drawing", e));
-  return st;
+  glDrawElements(GL_TRIANGLES, GLsizei(triangles * 3), GL_UNSIGNED_INT, nullptr);
+  glDepthFunc(GL_LESS);
+  if (o.wireframe) glPolygonMode(GL_FRONT_AND_BACK, GL_FILL);
+  st.triangles = triangles;
+}
+
+// The octree's selection, the reliable patch triangles first (with
+// mesh_reliability: a prefix, most reliable first) and the billboards of
+// the facets they leave out; then the billboards, instanced.
+void ModelRenderer::draw_billboards(const Pass& pass, DrawStats& st) {
+  const DrawOptions& o = pass.o;
+  const ViewCamera& view = pass.view;
+  SelectionOptions so = o.selection;
+  so.near_m = pass.near_m;
+  LodOptions lo = o.lod;
+  lo.backface_cos = so.backface_cos;
+  if (!so.frustum_cull || !so.backface_cull) lo.enabled = false;  // "draw everything" means every model facet
+  st.lod = hierarchy_.select(view, lo, pass.near_m, candidates_);
+  if (o.mesh_reliability > 0 && has_mesh()) {
+    const float R = float(o.mesh_reliability);
+    const size_t n = size_t(std::partition_point(triangle_reliability_.begin(), triangle_reliability_.end(),
+                                                 [&](float r) { return r >= R; }) -
+                            triangle_reliability_.begin());
+    if (n) draw_mesh(pass, meshes_[0], n, true, st);
+    const auto& least = hierarchy_.least_reliability();
+    const size_t before = candidates_.size();
+    std::erase_if(candidates_, [&](uint32_t i) { return least[i] >= R; });
+    st.facets_on_mesh = before - candidates_.size();
+  }
+  const GlProgram& p = programs_->billboard;
+  use_program(p, pass);
+  st.selection = select_facets(FacetSet{hierarchy_.facets(), hierarchy_.facet_cameras(), &candidates_}, model_.cameras,
+                               view, so, instances_);
+  st.selection.facets = model_.facets.size();
+  const Eigen::Vector3d up = -view.world_from_camera.linear().col(1);
+  glUniform3f(p.uniform("u_up"), float(up.x()), float(up.y()), float(up.z()));
+  glUniform1f(p.uniform("u_scale"), float(std::max(o.billboard_scale, std::sqrt(3.0))));
+  glUniform1i(p.uniform("u_clip"), o.depth_clip ? 1 : 0);
+  glUniform1f(p.uniform("u_clip_scale"), float(o.clip_scale));
+  glUniform1i(p.uniform("u_probe"), nearest_camera(model_, view));
+  glUniform1i(p.uniform("u_refine"), std::max(0, o.refine_steps));
+  // In a silhouette-only model the hull is the geometry, and clipping against it is meaningful.
+  glUniform1i(p.uniform("u_clip_fuzzy"), o.clip_fuzzy || !has_reliable_ ? 1 : 0);
+  const Eigen::Vector3d fwd = view.world_from_camera.linear().col(2);
+  glUniform3f(p.uniform("u_view_forward"), float(fwd.x()), float(fwd.y()), float(fwd.z()));
+  glUniform1f(p.uniform("u_view_focal"), float(std::sqrt(view.K.fx * view.K.fy)));
+  glUniform1f(p.uniform("u_px_error"), float(std::max(0.0, o.pixel_error)));
+  glBindVertexArray(billboard_vao_);
+  glBindBuffer(GL_ARRAY_BUFFER, instance_vbo_);
+  glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(instances_.size() * sizeof(FacetInstance)), instances_.data(), GL_STREAM_DRAW);
+  if (!instances_.empty()) glDrawArraysInstanced(GL_TRIANGLE_STRIP, 0, 4, GLsizei(instances_.size()));
 }
 
 }  // namespace s2r

@@ -52,6 +52,7 @@
 namespace s2r {
 
 class GlossyRenderer;
+class GlProgram;
 
 struct DrawOptions {
   // kMesh: the octree's patch mesh; kSurface: the fused surface mesh.
@@ -114,15 +115,23 @@ class ModelRenderer {
  private:
   ModelRenderer() = default;
   struct Programs;
+  struct Pass;
+  struct GpuMesh {
+    unsigned vao = 0, vbo = 0, ibo = 0;
+    size_t triangles = 0;
+  };
+  // draw()'s steps.
+  Status clear_and_environment(const Pass& pass, const Framebuffer& target, DrawStats& st);
+  void bind_model_state() const;
+  void use_program(const GlProgram& p, const Pass& pass) const;
+  std::vector<int> nearest_cameras(const ViewCamera& view, int k) const;
+  void draw_mesh(const Pass& pass, const GpuMesh& g, size_t triangles, bool nearest, DrawStats& st) const;
+  void draw_billboards(const Pass& pass, DrawStats& st);
   Model model_;
   std::unique_ptr<Programs> programs_;
   unsigned color_array_ = 0, distance_array_ = 0;
   unsigned facet_ssbo_ = 0, camera_ssbo_ = 0;
   unsigned billboard_vao_ = 0, instance_vbo_ = 0;
-  struct GpuMesh {
-    unsigned vao = 0, vbo = 0, ibo = 0;
-    size_t triangles = 0;
-  };
   GpuMesh meshes_[2];  // patch mesh (most reliable triangles first), fused surface
   std::vector<float> triangle_reliability_;  // per patch-mesh triangle, as uploaded (descending)
   size_t texture_bytes_ = 0;

@@ -53,7 +53,7 @@ Built build(const std::string& scene, const std::vector<int>& held) {
 }
 
 // mesh_reliability > 0 adds the hybrid row (patch mesh where reliable).
-Report eval(const Built& b, const std::vector<int>& frames, const std::string& name, double mesh_reliability = 0) {
+EvalSummary eval(const Built& b, const std::vector<int>& frames, const std::string& name, double mesh_reliability = 0) {
   EvalJob e;
   e.draw.mesh_reliability = mesh_reliability;
   e.model = b.model;
@@ -64,7 +64,7 @@ Report eval(const Built& b, const std::vector<int>& frames, const std::string& n
   EXPECT_TRUE(r) << r.error().message;
   if (!r) return {};
   std::printf("%s: %s\n", name.c_str(), r->brief().c_str());
-  for (const auto& [k, v] : r->errors)
+  for (const auto& [k, v] : r->report.errors)
     if (k.find("_frame_") == std::string::npos) testing::Test::RecordProperty(name + "_" + k, std::to_string(v));
   return *r;
 }
@@ -72,25 +72,28 @@ Report eval(const Built& b, const std::vector<int>& frames, const std::string& n
 TEST(RenderRig, BunnyInputViewsReproduceThePhotosClippingAndTheHybridPayAtHeldOutViews) {
   if (!fs::exists(fs::path(S2R_DATA_DIR) / "stanford_bunny" / "bun_zipper.ply")) GTEST_SKIP() << "no Stanford bunny in " << S2R_DATA_DIR;
   const Built b = build("bunny", {5, 17});
-  const Report input = eval(b, {0, 8, 12}, "bunny_input");
-  EXPECT_GE(input.errors.at("psnr_db_billboards_input_views"), 40.0);
-  EXPECT_GE(input.counts.at("coverage_billboards"), 0.99);
-  const Report held = eval(b, {5, 17}, "bunny_held_out", 0.2);
-  EXPECT_GT(held.errors.at("depth_clip_gain_db"), 2.0);
-  EXPECT_GE(held.errors.at("psnr_db_billboards_held_out"), 22.0);
+  const EvalSummary input = eval(b, {0, 8, 12}, "bunny_input");
+  ASSERT_TRUE(input.method("billboards"));
+  EXPECT_GE(input.method("billboards")->psnr_db_input_views.value_or(0), 40.0);
+  EXPECT_GE(input.method("billboards")->coverage, 0.99);
+  const EvalSummary held = eval(b, {5, 17}, "bunny_held_out", 0.2);
+  ASSERT_TRUE(held.method("billboards"));
+  EXPECT_GT(held.gain_db("billboards", "no_clip").value_or(0), 2.0);
+  EXPECT_GE(held.method("billboards")->psnr_db_held_out.value_or(0), 22.0);
   // Reliable geometry from the patch mesh: a gain on this textured object.
-  EXPECT_GT(held.errors.at("hybrid_over_billboards_db"), 0.2);
+  EXPECT_GT(held.gain_db("hybrid", "billboards").value_or(0), 0.2);
 }
 
 TEST(RenderRig, FuzzyObjectBillboardsBeatThePatchMeshAndTheHybridLosesNothing) {
   const Built b = build("fuzzy", {5, 17});
-  const Report held = eval(b, {5, 17}, "fuzzy_held_out", 0.2);
+  const EvalSummary held = eval(b, {5, 17}, "fuzzy_held_out", 0.2);
+  ASSERT_TRUE(held.method("billboards"));
   // The strands have no surface: billboards beat the textured patch mesh
   // (4.1 dB measured), and the hybrid keeps billboards there (no loss).
-  EXPECT_GT(held.errors.at("billboards_over_mesh_held_out_db"), 2.0);
-  EXPECT_GT(held.errors.at("hybrid_over_billboards_db"), -0.5);
-  EXPECT_TRUE(held.errors.count("billboards_over_surface_db"));
-  EXPECT_GT(held.counts.at("coverage_billboards"), 0.9);
+  EXPECT_GT(held.gain_db("billboards", "mesh", true).value_or(0), 2.0);
+  EXPECT_GT(held.gain_db("hybrid", "billboards").value_or(-1), -0.5);
+  EXPECT_TRUE(held.method("surface"));
+  EXPECT_GT(held.method("billboards")->coverage, 0.9);
 }
 
 }  // namespace
