@@ -32,15 +32,17 @@ void add_synth(CLI::App& app, Chosen& chosen) {
 void add_import(CLI::App& app, Chosen& chosen) {
   auto* sub = app.add_subcommand("import", "Turn a real data set into a session");
   auto a = std::make_shared<ImportArgs>();
-  sub->add_option("kind", a->kind, "stanford | middlebury | realsense | 7scenes | nerf")
-      ->required()->check(CLI::IsMember({"stanford", "middlebury", "realsense", "7scenes", "nerf"}));
-  sub->add_option("path", a->path, "stanford: the .conf; nerf: the folder or its transforms JSON; others: the data folder")
+  sub->add_option("kind", a->kind, "stanford | middlebury | realsense | 7scenes | nerf | colmap")
+      ->required()->check(CLI::IsMember({"stanford", "middlebury", "realsense", "7scenes", "nerf", "colmap"}));
+  sub->add_option("path", a->path, "stanford: the .conf; nerf: the folder or its transforms JSON; colmap: the model folder "
+                  "(or a project with sparse/0); others: the data folder")
       ->required();
   sub->add_option("--out", a->out, "session folder to create")->required();
   sub->add_option("--stride", a->options.stride, "take every n-th view")->capture_default_str();
   sub->add_option("--max-frames", a->options.max_frames, "0 = all")->capture_default_str();
   sub->add_option("--split", a->options.split, "nerf: transforms_SPLIT.json (train, val, test); default transforms.json, "
                   "else the train split");
+  sub->add_option("--images", a->options.images, "colmap: the images' folder (default PATH/images, else beside the model)");
   sub->add_option("--background", a->background, "nerf: white, black or R,G,B (0-255 levels) under RGBA photos; default white");
   sub->add_option("--report", a->report, "report path (default OUT/report.json)");
   sub->callback([a, &chosen] { chosen = a; });

@@ -12,6 +12,9 @@
 //              an RGBA photo becomes its colour on the background (white unless
 //              given) plus its alpha as the frame's matte. Each split is imported
 //              on its own into the same world frame (no rescaling, no centring).
+//   colmap     a COLMAP sparse model, text or binary (cameras, images,
+//              points3D): SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV;
+//              cam_from_world inverted, pixel centres moved to integers.
 //
 // Frames keep the source's own listing order; `source` keeps the original name.
 #pragma once
@@ -31,6 +34,7 @@ struct ImportOptions {
   int max_frames = 0;  // 0 = all
   std::string split;   // nerf: transforms_<split>.json; empty: transforms.json, else transforms_train.json
   std::optional<std::array<float, 3>> background;  // nerf: what RGBA photos are composited on (default white)
+  std::filesystem::path images;  // colmap: the images' folder (default DIR/images, else beside the model)
 };
 
 Result<Report> import_dataset(const std::string& kind, const std::filesystem::path& path,

@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <cstdlib>
 #include <fstream>
 
 #include "capture/session.h"
@@ -206,6 +208,119 @@ TEST(ImportNerf, BadFilesAreClearErrorsAndWriteNoSession) {
   r = import_dataset("nerf", dir, dir / "session2", {.split = "test"});
   ASSERT_FALSE(r);
   EXPECT_EQ(r.error().code, ErrorCode::not_found);
+  fs::remove_all(dir);
+}
+
+// A COLMAP text model written here (three camera models, one image without
+// 2-D points), imported; then the same model converted to binary by COLMAP's
+// own model_converter and imported again: the same cameras and poses.
+TEST(ImportColmap, TextAndColmapsOwnBinaryGiveTheSameSession) {
+  const fs::path dir = fs::temp_directory_path() / ("s2r_import_colmap_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir / "images");
+  fs::create_directories(dir / "txt");
+  ASSERT_TRUE(write_image(dir / "images" / "a.png", ImageU8(40, 30, 3, 90)));
+  ASSERT_TRUE(write_image(dir / "images" / "b.png", ImageU8(40, 30, 3, 90)));
+  ASSERT_TRUE(write_image(dir / "images" / "c.png", ImageU8(64, 48, 3, 90)));
+  std::ofstream(dir / "txt" / "cameras.txt") << "# CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
+                                             << "1 SIMPLE_RADIAL 40 30 50 20 15 0.01\n"
+                                             << "2 OPENCV 64 48 60 61 32 24 0.1 -0.02 0.001 0.002\n"
+                                             << "7 PINHOLE 40 30 52 53 20.5 14.5\n";
+  // Image 2 is a quarter turn about y, 1 unit back; image 5 has no 2-D points.
+  const double h = std::sqrt(0.5);
+  std::ofstream(dir / "txt" / "images.txt") << "# IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n"
+                                            << "3 1 0 0 0 0 0 2 1 a.png\n10 12 1\n"
+                                            << "2 " << h << " 0 " << h << " 0 0 0 1 2 c.png\n5 6 -1 7 8 1\n"
+                                            << "5 1 0 0 0 0.1 0 3 7 b.png\n\n";
+  std::ofstream(dir / "txt" / "points3D.txt") << "1 0 0 0 255 0 0 0.5 3 0 2 0\n";
+  auto t = import_dataset("colmap", dir / "txt", dir / "from_text", {.images = dir / "images"});
+  ASSERT_TRUE(t) << t.error().message;
+  EXPECT_EQ(t->counts.at("points3d"), 1);
+  auto s = load_session(dir / "from_text");
+  ASSERT_TRUE(s) << s.error().message;
+  ASSERT_EQ(s->frames.size(), 3u);
+  EXPECT_EQ(s->frames[1].source, "c.png");
+  const Intrinsics Ka = *s->frames[0].intrinsics, Kc = *s->frames[1].intrinsics, Kb = *s->frames[2].intrinsics;
+  EXPECT_EQ(Ka.fx, 50);
+  EXPECT_EQ(Ka.fy, 50);
+  EXPECT_EQ(Ka.cx, 19.5);  // COLMAP's pixel centres at +0.5
+  EXPECT_EQ(Ka.dist[0], 0.01);
+  EXPECT_EQ(Kc.fy, 61);
+  EXPECT_EQ(Kc.cy, 23.5);
+  EXPECT_EQ(Kc.dist[3], 0.002);
+  EXPECT_EQ(Kb.fx, 52);
+  EXPECT_EQ(Kb.cx, 20.0);
+  // cam_from_world inverted: image a's camera centre is at z = -2.
+  EXPECT_NEAR((s->frames[0].world_from_camera->translation() - Eigen::Vector3d(0, 0, -2)).norm(), 0, 1e-12);
+  // The world origin is 1 unit in front of image c's camera.
+  EXPECT_NEAR((s->frames[1].world_from_camera->inverse() * Eigen::Vector3d::Zero()).z(), 1.0, 1e-12);
+
+  if (std::system("command -v colmap >/dev/null 2>&1") != 0) GTEST_SKIP() << "COLMAP is not installed (scripts/setup installs it)";
+  fs::create_directories(dir / "bin");
+  const std::string cmd = "colmap model_converter --input_path '" + (dir / "txt").string() + "' --output_path '" +
+                          (dir / "bin").string() + "' --output_type BIN >/dev/null 2>&1";
+  ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
+  ASSERT_TRUE(fs::exists(dir / "bin" / "images.bin"));
+  auto b = import_dataset("colmap", dir / "bin", dir / "from_bin", {.images = dir / "images"});
+  ASSERT_TRUE(b) << b.error().message;
+  EXPECT_EQ(std::get<std::string>(b->params.at("encoding")), "binary");
+  EXPECT_EQ(b->counts.at("points3d"), 1);
+  auto sb = load_session(dir / "from_bin");
+  ASSERT_TRUE(sb) << sb.error().message;
+  ASSERT_EQ(sb->frames.size(), 3u);
+  // COLMAP writes images in its own order: match them by name.
+  for (const auto& ft : s->frames) {
+    const auto fb = std::find_if(sb->frames.begin(), sb->frames.end(), [&](const Frame& f) { return f.source == ft.source; });
+    ASSERT_NE(fb, sb->frames.end()) << ft.source;
+    const Intrinsics &x = *ft.intrinsics, &y = *fb->intrinsics;
+    EXPECT_EQ(x.fx, y.fx);
+    EXPECT_EQ(x.fy, y.fy);
+    EXPECT_EQ(x.cx, y.cx);
+    EXPECT_EQ(x.cy, y.cy);
+    for (size_t k = 0; k < 5; ++k) EXPECT_EQ(x.dist[k], y.dist[k]);
+    EXPECT_LT((ft.world_from_camera->matrix() - fb->world_from_camera->matrix()).norm(), 1e-9) << ft.source;
+  }
+  fs::remove_all(dir);
+}
+
+TEST(ImportColmap, BadModelsAreClearErrors) {
+  const fs::path dir = fs::temp_directory_path() / ("s2r_import_colmapbad_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  ASSERT_TRUE(write_image(dir / "a.png", ImageU8(40, 30, 3, 90)));
+  auto with = [&](const std::string& cameras, const std::string& images) {
+    std::ofstream(dir / "cameras.txt") << cameras;
+    std::ofstream(dir / "images.txt") << images;
+    fs::remove_all(dir / "session");
+    return import_dataset("colmap", dir, dir / "session", {});
+  };
+  auto r = with("1 FOV 40 30 50 20 15 0.1\n", "1 1 0 0 0 0 0 1 1 a.png\n\n");
+  ASSERT_FALSE(r);
+  EXPECT_EQ(r.error().code, ErrorCode::unsupported);
+  EXPECT_NE(r.error().message.find("FOV"), std::string::npos);
+  r = with("1 PINHOLE 40 30 50 20 15\n", "1 1 0 0 0 0 0 1 1 a.png\n\n");
+  ASSERT_FALSE(r);
+  EXPECT_NE(r.error().message.find("4 parameters, got 3"), std::string::npos) << r.error().message;
+  r = with("1 SIMPLE_PINHOLE 40 30 50 20 15\n", "1 2 0 0 0 0 0 1 1 a.png\n\n");
+  ASSERT_FALSE(r);
+  EXPECT_NE(r.error().message.find("quaternion"), std::string::npos) << r.error().message;
+  r = with("1 SIMPLE_PINHOLE 40 30 50 20 15\n", "1 1 0 0 0 0 0 1 9 a.png\n\n");
+  ASSERT_FALSE(r);
+  EXPECT_NE(r.error().message.find("camera 9"), std::string::npos) << r.error().message;
+  EXPECT_FALSE(fs::exists(dir / "session" / "session.json"));
+  r = with("1 SIMPLE_PINHOLE 80 60 50 20 15\n", "1 1 0 0 0 0 0 1 1 a.png\n\n");
+  ASSERT_FALSE(r);
+  EXPECT_NE(r.error().message.find("40x30"), std::string::npos) << r.error().message;
+  r = with("1 SIMPLE_PINHOLE 40 30 50 20 15\n", "1 1 0 0 0 0 0 1 1 ../../etc/passwd\n\n");
+  ASSERT_FALSE(r);
+  // A truncated binary file.
+  fs::remove(dir / "cameras.txt");
+  fs::remove(dir / "images.txt");
+  std::ofstream(dir / "cameras.bin", std::ios::binary) << std::string("\x05\0\0\0\0\0\0\0\x01", 9);
+  std::ofstream(dir / "images.bin", std::ios::binary) << std::string(8, '\0');
+  r = import_dataset("colmap", dir, dir / "session", {});
+  ASSERT_FALSE(r);
+  EXPECT_EQ(r.error().code, ErrorCode::format);
   fs::remove_all(dir);
 }
 
