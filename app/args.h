@@ -128,6 +128,7 @@ struct EnvmapArgs {
 struct BenchArgs {
   std::string stage, out, scene = "blob";
   int repeats = 3, size = 512, voxels = 10000;
+  int lego_views = 100;  // views: how many of lego's 100 val views (evenly spaced)
 };
 struct SummaryArgs {
   std::string folder, title = "scan2render run";

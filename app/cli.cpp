@@ -17,12 +17,17 @@ void add_bench(CLI::App& app, Chosen& chosen) {
                   "the central field and over all pixels), envmap (environment map error against brute-force Phong vs build seconds "
                   "and memory, per size, weight threshold and pyramid resolution; every bundled panorama; a GL glossy sphere against the ray "
                   "tracer), material (texture / bump / parallax occlusion mapping switched per pixel by Tsutsumi's thresholds, "
-                  "frame time and PSNR against parallax everywhere, on a board and a roof model)")
+                  "frame time and PSNR against parallax everywhere, on a board and a roof model), "
+                  "views (held-out views as the field measures them: lego val on white fitted on train, the rig bunny and fuzzy, "
+                  "the Middlebury dino ring leave-one-out, the RealSense bear; billboards and the textured patch mesh; full-image and "
+                  "masked PSNR/SSIM, build seconds, model bytes, frame ms; views.csv, views.png)")
       ->required();
   sub->add_option("--out", a->out, "output folder")->required();
   sub->add_option("--repeats", a->repeats, "renders per point (median)")->capture_default_str();
   sub->add_option("--scene", a->scene, "rig scene for the rig sweep")->capture_default_str();
   sub->add_option("--size", a->size, "raytrace: pixels per CAVE screen side (the paper: 256; 512 steadies the timings)")->capture_default_str();
+  sub->add_option("--lego-views", a->lego_views, "views: lego val views evaluated, evenly spaced (100 = all)")
+      ->capture_default_str();
   sub->add_option("--voxels", a->voxels, "envmap: voxels checked against brute force at the default setting (a tenth elsewhere)")
       ->capture_default_str();
   sub->callback([a, &chosen] { chosen = a; });

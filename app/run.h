@@ -34,6 +34,7 @@ int run(const ViewArgs& a);
 int run(const RaytraceArgs& a);
 int run(const EnvmapArgs& a);
 int run(const BenchArgs& a);    // app/cmd_bench.cpp
+int bench_views(const std::filesystem::path& out, int lego_views);  // app/cmd_bench_views.cpp
 int run(const SummaryArgs& a);  // app/cmd_summary.cpp
 
 // Print the report's brief line and write it to `path` (or OUT/report.json).

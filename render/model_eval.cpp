@@ -226,6 +226,7 @@ std::vector<EvalMethod> eval_methods(const EvalJob& job, const ModelRenderer& re
       methods.push_back(m);
     }
   }
+  if (!job.only.empty()) std::erase_if(methods, [&](const EvalMethod& m) { return !job.only.count(m.name); });
   return methods;
 }
 
@@ -407,6 +408,9 @@ std::optional<double> EvalSummary::gain_db(std::string_view a, std::string_view 
 Status EvalJob::validate() const {
   if (frames.empty()) return fail(ErrorCode::invalid, "frames: give the frames to evaluate");
   if (source.session.empty()) return fail(ErrorCode::invalid, "session: is needed, the photos come from it");
+  for (const auto& m : only)
+    if (m != "billboards" && m != "hybrid" && m != "no_clip" && m != "mesh" && m != "surface")
+      return fail(ErrorCode::invalid, "only: '" + m + "' is not a method (billboards, hybrid, no_clip, mesh, surface)");
   if (background)
     for (float c : *background)
       if (!(c >= 0 && c <= 1)) return fail(ErrorCode::invalid, "background: each channel must be in [0, 1]");
@@ -430,6 +434,7 @@ Result<EvalSummary> run_eval_job(const EvalJob& job) {
   if (ec) return fail("cannot create " + job.out.string() + ": " + ec.message());
 
   std::vector<EvalMethod> methods = eval_methods(job, *r->renderer);
+  if (methods.empty()) return fail(ErrorCode::invalid, "only: none of the methods asked for can be drawn with this model");
   EvalSummary sum;
   Report& rep = sum.report;
   rep.stage = "eval";
@@ -454,6 +459,7 @@ Result<EvalSummary> run_eval_job(const EvalJob& job) {
   }
   progress.done();
   eval_summary(job, methods, series, sum);
+  if (!job.only.empty()) rep.skipped["methods_not_asked"] = double(eval_methods(EvalJob{.draw = job.draw, .baselines = job.baselines}, *r->renderer).size() - methods.size());
   if (!job.baselines) rep.skipped["baselines_not_asked"] = 1;
   else {
     if (!r->renderer->has_mesh(DrawOptions::Geometry::kMesh)) rep.skipped["mesh_baseline_no_patch_mesh"] = 1;

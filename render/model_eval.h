@@ -20,6 +20,7 @@
 #include <array>
 #include <filesystem>
 #include <optional>
+#include <set>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -85,6 +86,8 @@ struct EvalJob {
   std::filesystem::path out;  // folder: per-view strips, eval.csv, report.json
   DrawOptions draw;
   bool baselines = true;      // billboards without clipping and the mesh, in the same run
+  // The methods to draw (billboards, hybrid, no_clip, mesh, surface); empty: all of the above that apply.
+  std::set<std::string> only;
   // RGB in [0, 1]; empty: the session's background, else the backdrop's colour, else black.
   std::optional<std::array<float, 3>> background;
 

@@ -1,0 +1,222 @@
+// s2r bench views: held-out views of every scene the product is judged on,
+// one table. NeRF-synthetic lego (fit on train, every val view, full image on
+// white as the field reports it), the rig bunny and fuzzy object (frames 5 and
+// 17 held out), the Middlebury dino ring (frames 3, 7 and 11, each left out of
+// its own model), the RealSense bear (frame 3 held out after the markers'
+// calibration and registration). Billboards and the textured patch mesh in
+// the same run; build seconds, model bytes, frame ms at the images' size.
+#include <cstdio>
+#include <numeric>
+
+#include <spdlog/fmt/fmt.h>
+
+#include "app/run.h"
+#include "calibrate/table_markers.h"
+#include "capture/import_datasets.h"
+#include "capture/synth_rig.h"
+#include "core/paths.h"
+#include "core/sweep.h"
+#include "reconstruct/reconstruct_job.h"
+#include "reconstruct/register_job.h"
+#include "render/model_eval.h"
+
+namespace s2r::cli {
+namespace fs = std::filesystem;
+
+namespace {
+
+// One scene's models (one, or one per left-out view) and their evaluations.
+struct SceneRun {
+  std::string scene;
+  double build_seconds = 0;  // every model's reconstruct, summed
+  double model_bytes = 0;    // per model, the mean
+  std::vector<EvalSummary> evals;
+  std::string size;          // the images' size
+};
+
+double folder_bytes(const fs::path& dir) {
+  std::error_code ec;
+  double bytes = 0;
+  for (fs::recursive_directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec))
+    if (it->is_regular_file(ec)) bytes += double(it->file_size(ec));
+  return bytes;
+}
+
+std::vector<int> frames_every(int count, int step) {
+  std::vector<int> f;
+  for (int i = 0; i < count; i += std::max(1, step)) f.push_back(i);
+  return f;
+}
+
+// Reconstructs `job`, then evaluates `frames` of `eval_session` with
+// billboards and the textured patch mesh.
+Status build_and_eval(SceneRun& run, ReconstructJob job, const FrameSource& source, const std::vector<int>& frames,
+                      const fs::path& eval_out) {
+  auto built = run_reconstruct_job(job);
+  if (!built) return std::unexpected(with_context(built.error(), run.scene + ": reconstruct"));
+  run.build_seconds += built->seconds;
+  run.model_bytes += folder_bytes(job.out);
+  EvalJob e;
+  e.model = job.out;
+  e.source = source;
+  e.frames = frames;
+  e.out = eval_out;
+  e.only = {"billboards", "mesh"};
+  auto ev = run_eval_job(e);
+  if (!ev) return std::unexpected(with_context(ev.error(), run.scene + ": eval"));
+  std::fprintf(stderr, "%s: %s\n", run.scene.c_str(), ev->brief().substr(0, 200).c_str());
+  run.evals.push_back(std::move(*ev));
+  return {};
+}
+
+Result<SceneRun> lego(const fs::path& out, int views) {
+  SceneRun run{"lego"};
+  const fs::path data = data_dir() / "nerf_synthetic_lego";
+  if (!fs::exists(data / "transforms_train.json")) return fail(ErrorCode::not_found, "no lego in " + data.string());
+  for (const char* split : {"train", "val"}) {
+    fs::remove_all(out / split);
+    ImportOptions o;
+    o.split = split;
+    if (auto r = import_dataset("nerf", data, out / split, o); !r) return std::unexpected(r.error());
+  }
+  ReconstructJob job;
+  job.session = out / "train";
+  job.out = out / "model";
+  job.geometry = Geometry::hull;
+  run.size = "800x800";
+  if (auto st = build_and_eval(run, job, {out / "val"}, frames_every(100, 100 / std::clamp(views, 1, 100)), out / "eval"); !st)
+    return std::unexpected(st.error());
+  return run;
+}
+
+Result<SceneRun> rig(const fs::path& out, const std::string& scene) {
+  SceneRun run{"rig " + scene};
+  SynthOptions so;
+  so.scene = scene;
+  so.views = 24;
+  so.seed = 3;
+  fs::remove_all(out / "session");
+  if (auto s = synth_session(so, out / "session"); !s) return std::unexpected(s.error());
+  run.size = fmt::format("{}x{}", so.width, so.height);
+  ReconstructJob job;
+  job.session = out / "session";
+  job.out = out / "model";
+  job.holdout = {5, 17};
+  if (auto st = build_and_eval(run, job, {out / "session"}, {5, 17}, out / "eval"); !st) return std::unexpected(st.error());
+  return run;
+}
+
+Result<SceneRun> dino(const fs::path& out) {
+  SceneRun run{"dino ring"};
+  fs::remove_all(out / "session");
+  if (auto r = import_dataset("middlebury", data_dir() / "middlebury_dino_ring", out / "session", {}); !r)
+    return std::unexpected(r.error());
+  run.size = "640x480";
+  for (int held : {3, 7, 11}) {
+    ReconstructJob job;
+    job.session = out / "session";
+    job.out = out / fmt::format("model_{}", held);
+    job.geometry = Geometry::hull;
+    job.holdout = {held};
+    if (auto st = build_and_eval(run, job, {out / "session"}, {held}, out / fmt::format("eval_{}", held)); !st)
+      return std::unexpected(st.error());
+  }
+  return run;
+}
+
+Result<SceneRun> bear(const fs::path& out) {
+  SceneRun run{"bear"};
+  const fs::path session = out / "session", cal = out / "calibration.json", reg = out / "register";
+  fs::remove_all(session);
+  if (auto r = import_dataset("realsense", data_dir() / "realsense_d435_bear" / "bear", session, {}); !r)
+    return std::unexpected(r.error());
+  if (auto r = run_markers_job(session, cal, {}); !r) return std::unexpected(with_context(r.error(), "bear: markers"));
+  RegisterJob rj;
+  rj.session = session;
+  rj.calibration = cal;
+  rj.out = reg;
+  if (auto r = run_register_job(rj); !r) return std::unexpected(with_context(r.error(), "bear: register"));
+  run.size = "640x480";
+  ReconstructJob job;
+  job.session = session;
+  job.poses = reg / "poses.json";
+  job.calibration = cal;
+  job.out = out / "model";
+  job.holdout = {3};
+  if (auto st = build_and_eval(run, job, {session, reg / "poses.json", cal}, {3}, out / "eval"); !st)
+    return std::unexpected(st.error());
+  return run;
+}
+
+// A method's figures over a scene's evaluations, weighted by their views.
+struct Pooled {
+  double full_psnr = 0, full_ssim = 0, psnr = 0, ssim = 0, frame_ms = 0;
+  size_t views = 0;
+};
+std::optional<Pooled> pooled(const SceneRun& run, const std::string& method) {
+  Pooled p;
+  for (const auto& e : run.evals) {
+    const EvalMethodFigures* m = e.method(method);
+    if (!m) return std::nullopt;
+    const double n = double(e.views);
+    p.full_psnr += n * m->full_psnr_db, p.full_ssim += n * m->full_ssim;
+    p.psnr += n * m->psnr_db, p.ssim += n * m->ssim, p.frame_ms += n * m->frame_ms;
+    p.views += e.views;
+  }
+  if (!p.views) return std::nullopt;
+  for (double* x : {&p.full_psnr, &p.full_ssim, &p.psnr, &p.ssim, &p.frame_ms}) *x /= double(p.views);
+  return p;
+}
+
+}  // namespace
+
+int bench_views(const fs::path& out, int lego_views) {
+  Stopwatch total;
+  Report rep;
+  rep.stage = "bench.views";
+  std::error_code ec;
+  fs::create_directories(out, ec);
+  std::vector<std::pair<std::string, std::function<Result<SceneRun>()>>> scenes = {
+      {"lego", [&] { return lego(out / "lego", lego_views); }},
+      {"bunny", [&] { return rig(out / "bunny", "bunny"); }},
+      {"fuzzy", [&] { return rig(out / "fuzzy", "fuzzy"); }},
+      {"dino", [&] { return dino(out / "dino"); }},
+      {"bear", [&] { return bear(out / "bear"); }}};
+  SweepTable t;
+  t.columns = {"build_seconds", "full_psnr_db", "full_ssim", "psnr_db_masked", "ssim_masked", "frame_ms", "model_mib", "views"};
+  for (const auto& [name, make] : scenes) {
+    auto run = make();
+    if (!run) {
+      rep.warnings.push_back(name + ": " + run.error().message);
+      std::fprintf(stderr, "%s: left out: %s\n", name.c_str(), run.error().message.c_str());
+      continue;
+    }
+    const double models = double(std::max<size_t>(1, run->evals.size()));
+    for (const std::string method : {"billboards", "mesh"}) {
+      auto p = pooled(*run, method);
+      if (!p) continue;
+      t.row_labels.push_back(run->scene + " " + run->size + ": " + method);
+      t.rows.push_back({run->build_seconds, p->full_psnr, p->full_ssim, p->psnr, p->ssim, p->frame_ms,
+                        run->model_bytes / models / (1 << 20), double(p->views)});
+      rep.errors[fmt::format("full_psnr_db_{}_{}", name, method)] = p->full_psnr;
+      rep.errors[fmt::format("full_ssim_{}_{}", name, method)] = p->full_ssim;
+      rep.errors[fmt::format("psnr_db_masked_{}_{}", name, method)] = p->psnr;
+      rep.counts[fmt::format("frame_ms_{}_{}", name, method)] = p->frame_ms;
+      std::fprintf(stderr, "%s, %s: full-image PSNR %.2f dB (SSIM %.3f), masked %.2f dB, %zu views, build %.1f s, %.1f ms a frame\n",
+                   run->scene.c_str(), method.c_str(), p->full_psnr, p->full_ssim, p->psnr, p->views, run->build_seconds,
+                   p->frame_ms);
+    }
+    rep.counts["build_seconds_" + name] = run->build_seconds;
+    rep.counts["model_mib_" + name] = run->model_bytes / models / (1 << 20);
+  }
+  if (t.rows.empty()) return error("bench views: no scene could be built (" + std::to_string(rep.warnings.size()) + " left out)");
+  if (auto st = t.write_csv(out / "views.csv"); !st) return error(st.error().message);
+  PlotSpec spec{"held-out full-image PSNR against build seconds (each point a scene and method)", "build seconds",
+                "PSNR (dB)", "build_seconds", {"full_psnr_db"}, true, true};
+  if (auto st = plot_png(t, spec, out / "views.png"); !st) rep.warnings.push_back(st.error().message);
+  rep.params["lego_views"] = double(lego_views);
+  rep.seconds = total.seconds();
+  return finish(rep, out / "report.json");
+}
+
+}  // namespace s2r::cli
