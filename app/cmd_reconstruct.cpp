@@ -47,7 +47,7 @@ int run(const RegisterArgs& a) {
   }
   auto r = run_register_job(job);
   if (!r) return error(in_flag_terms(r.error(), flags));
-  return finish(*r, job.out / "report.json");
+  return finish(r->to_report(), job.out / "report.json");
 }
 
 int run(const ReconstructArgs& a) {

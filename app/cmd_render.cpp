@@ -118,7 +118,7 @@ int run(const RenderArgs& a) {
   job.environment = *env;
   auto r = run_render_job(job);
   if (!r) return error(in_flag_terms(r.error(), {{"scale", "--scale"}, {"session", "--session"}, {"up", "--up"}, {"panorama", "--panorama"}}));
-  return finish(*r, a.report.empty() ? beside(job.out) : fs::path(a.report));
+  return finish(r->to_report(), a.report.empty() ? beside(job.out) : fs::path(a.report));
 }
 
 int run(const EvalArgs& a) {
@@ -174,7 +174,7 @@ int run(const RaytraceArgs& a) {
                                   {"scene", "--scene"}};
   auto r = run_raytrace_job(job);
   if (!r) return error(in_flag_terms(r.error(), flags));
-  return finish(*r, fs::path(a.out) / "report.json");
+  return finish(r->to_report(), fs::path(a.out) / "report.json");
 }
 
 int run(const EnvmapArgs& a) {

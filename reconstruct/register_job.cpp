@@ -143,9 +143,10 @@ Status write_results(const RegisterJob& job, const LoadedViews& lv, const std::v
 
 // Load the views, resolve the options, perturb the start, register (each
 // round's error against the reference into the convergence table), write.
-Result<Report> run_register_job(const RegisterJob& job) {
+Result<RegisterSummary> run_register_job(const RegisterJob& job) {
   Stopwatch clock;
-  Report report;
+  RegisterSummary sum;
+  Report& report = sum.report;
   report.stage = "register";
   if (auto st = job.validate(); !st) return std::unexpected(st.error());
   auto lv = load_views(job);
@@ -192,10 +193,17 @@ Result<Report> run_register_job(const RegisterJob& job) {
   report.params["mode"] = std::string(o.mode == RegistrationMode::kFree ? "free" : "turntable");
   report.params["fixed_view"] = views[static_cast<size_t>(o.fixed_view)].name;
   report.counts["register_seconds"] = r->seconds;
+  sum.mode = o.mode;
+  sum.fixed_view = views[static_cast<size_t>(o.fixed_view)].name;
+  sum.views = views.size();
+  sum.points_in = in.prep.input, sum.points_kept = in.prep.kept;
+  sum.rms_m = r->rms_m, sum.iterations = r->iterations, sum.rounds = r->rounds;
+  sum.register_seconds = r->seconds;
   std::optional<PoseError> view_error;
   if (reference) {
     const PoseError e0 = pose_error(start, *reference, centre, o.fixed_view);
     const PoseError e = pose_error(r->poses, *reference, centre, o.fixed_view);
+    sum.start_error = e0, sum.error = e;
     report.errors["start_max_rotation_deg"] = e0.max_rotation_deg;
     report.errors["start_max_translation_m"] = e0.max_translation_m;
     report.errors["max_rotation_deg"] = e.max_rotation_deg;
@@ -208,8 +216,8 @@ Result<Report> run_register_job(const RegisterJob& job) {
                 "seconds", {"rms_mm"}};
   if (reference) spec.y = {"rms_mm", "max_rot_err_deg", "max_trans_err_mm"};
   if (auto st = plot_png(table, spec, job.out / "convergence.png"); !st) report.warnings.push_back(st.error().message);
-  report.seconds = clock.seconds();
-  return report;
+  sum.seconds = report.seconds = clock.seconds();
+  return sum;
 }
 
 }  // namespace s2r

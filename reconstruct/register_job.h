@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <optional>
+#include <string>
 #include <vector>
 
 #include "core/report.h"
@@ -29,6 +30,22 @@ struct RegisterJob {
   Status validate() const;
 };
 
-Result<Report> run_register_job(const RegisterJob& job);
+// What run_register_job measured, typed (Ceres' Solver::Summary the model);
+// report.json is to_report().
+struct RegisterSummary {
+  RegistrationMode mode = RegistrationMode::kFree;
+  std::string fixed_view;                    // the view held fixed
+  size_t views = 0, points_in = 0, points_kept = 0;
+  double rms_m = 0;                          // point-to-plane over every overlapping pair
+  int iterations = 0, rounds = 0;
+  std::optional<PoseError> start_error, error;  // against the reference (the rig's truth or the unperturbed input)
+  double seconds = 0, register_seconds = 0;  // the job, the solve alone
+  Report report;
+
+  const Report& to_report() const { return report; }
+  std::string brief() const { return report.brief(); }
+};
+
+Result<RegisterSummary> run_register_job(const RegisterJob& job);
 
 }  // namespace s2r

@@ -162,7 +162,7 @@ Status RenderJob::validate() const {
   return {};
 }
 
-Result<Report> run_render_job(const RenderJob& job) {
+Result<RenderSummary> run_render_job(const RenderJob& job) {
   Stopwatch clock;
   if (auto st = job.validate(); !st) return std::unexpected(st.error());
   auto r = open_model(job.model);
@@ -174,7 +174,8 @@ Result<Report> run_render_job(const RenderJob& job) {
   const ViewCamera v = scaled(*view, job.scale);
   auto fb = Framebuffer::create(v.K.width, v.K.height);
   if (!fb) return std::unexpected(fb.error());
-  Report rep;
+  RenderSummary sum;
+  Report& rep = sum.report;
   rep.stage = "render";
   DrawOptions draw = job.draw;
   if (job.background) std::copy(job.background->begin(), job.background->end(), draw.background);
@@ -199,8 +200,12 @@ Result<Report> run_render_job(const RenderJob& job) {
   rep.params["width"] = double(v.K.width);
   rep.params["height"] = double(v.K.height);
   rep.params["renderer"] = r->context->describe();
-  rep.seconds = clock.seconds();
-  return rep;
+  sum.draw = *st;
+  sum.width = v.K.width, sum.height = v.K.height;
+  sum.texture_mib = double(r->renderer->texture_bytes()) / (1 << 20);
+  sum.renderer = r->context->describe();
+  sum.seconds = rep.seconds = clock.seconds();
+  return sum;
 }
 
 namespace {

@@ -77,7 +77,19 @@ struct RenderJob {
   // The options' own ranges, an error naming the field ("scale: ...").
   Status validate() const;
 };
-Result<Report> run_render_job(const RenderJob& job);
+// What run_render_job drew, typed; report.json is to_report().
+struct RenderSummary {
+  DrawStats draw;               // facets drawn and skipped, triangles, the LOD's counts, ms
+  int width = 0, height = 0;
+  double texture_mib = 0;       // camera textures held on the GPU
+  std::string renderer;         // the OpenGL renderer string
+  double seconds = 0;
+  Report report;
+
+  const Report& to_report() const { return report; }
+  std::string brief() const { return report.brief(); }
+};
+Result<RenderSummary> run_render_job(const RenderJob& job);
 
 struct EvalJob {
   std::filesystem::path model;

@@ -339,13 +339,16 @@ void report_trace(const RayTracer& rt, const LayoutRender& main, Report& rep) {
 // The same view at full detail: the time ratio and the PSNR inside the
 // central field and over all pixels.
 Status compare_with_full(const RaytraceJob& job, const RayTracer& rt, const EyePlacement& p, const TraceOptions& opt,
-                         const LayoutRender& main, Report& rep) {
+                         const LayoutRender& main, RaytraceSummary& sum) {
+  Report& rep = sum.report;
   TraceOptions full = opt;
   full.field_lod = false;
   const LayoutRender ref = render_layout(rt, p.screens, p.eye, full);
   for (size_t i = 0; i < p.screens.size(); ++i)
     if (auto st = write_image(job.out / ("full_" + p.screens[i].name + ".png"), to_u8(ref.walls[i].color)); !st) return st;
   const double central = psnr_where(main, ref, 1.0, 1.0), all = psnr_where(main, ref, 0.0, 1.0);
+  sum.psnr_central_field_db = central, sum.psnr_all_pixels_db = all;
+  sum.time_ratio_lod_over_full = main.seconds / std::max(1e-9, ref.seconds);
   // JSON has no infinity: identical images are reported as 100 dB and flagged.
   rep.errors["psnr_central_field_db"] = std::isinf(central) ? 100.0 : central;
   rep.errors["psnr_all_pixels_db"] = std::isinf(all) ? 100.0 : all;
@@ -363,9 +366,10 @@ Status compare_with_full(const RaytraceJob& job, const RayTracer& rt, const EyeP
 
 // The scene, the eye and its screens, the tracer; one render (after an
 // untimed one when comparing), its images and counts; the full-detail peer.
-Result<Report> run_raytrace_job(const RaytraceJob& job) {
+Result<RaytraceSummary> run_raytrace_job(const RaytraceJob& job) {
   Stopwatch total;
-  Report rep;
+  RaytraceSummary sum;
+  Report& rep = sum.report;
   rep.stage = "raytrace";
   if (auto st = job.validate(); !st) return std::unexpected(st.error());
   const bool seed = job.mesh.empty() && job.model.empty();
@@ -395,6 +399,10 @@ Result<Report> run_raytrace_job(const RaytraceJob& job) {
   const LayoutRender main = render_layout(rt, p.screens, p.eye, opt);
   if (auto st = write_walls(job, layout, p.screens, main); !st) return std::unexpected(st.error());
   report_trace(rt, main, rep);
+  sum.layout = layout;
+  sum.trace = main.stats;
+  sum.render_seconds = main.seconds, sum.bvh_build_seconds = rt.build_seconds();
+  sum.triangles_full_detail = triangles_max, sum.triangles_coarsest = triangles_min;
   rep.counts["triangles_full_detail"] = static_cast<double>(triangles_max);
   rep.counts["triangles_coarsest"] = static_cast<double>(triangles_min);
   rep.params["layout"] = layout;
@@ -403,9 +411,9 @@ Result<Report> run_raytrace_job(const RaytraceJob& job) {
   rep.params["reflect_max"] = static_cast<double>(job.reflect_max);
   rep.params["field_lod"] = job.field_lod;
   if (job.compare_full && job.field_lod)
-    if (auto st = compare_with_full(job, rt, p, opt, main, rep); !st) return std::unexpected(st.error());
-  rep.seconds = total.seconds();
-  return rep;
+    if (auto st = compare_with_full(job, rt, p, opt, main, sum); !st) return std::unexpected(st.error());
+  sum.seconds = rep.seconds = total.seconds();
+  return sum;
 }
 
 }  // namespace s2r

@@ -76,7 +76,23 @@ struct RaytraceJob {
   Status validate() const;
 };
 
-Result<Report> run_raytrace_job(const RaytraceJob& job);
+// What run_raytrace_job measured, typed; report.json is to_report().
+struct RaytraceSummary {
+  std::string layout;                      // cave or view
+  TraceStats trace;                        // rays, pixels, what the visual field left out
+  double render_seconds = 0, bvh_build_seconds = 0;
+  size_t triangles_full_detail = 0, triangles_coarsest = 0;
+  // Against the full-detail render (compare_full with field LOD): PSNR in
+  // the central field and over all pixels (infinite where identical).
+  std::optional<double> psnr_central_field_db, psnr_all_pixels_db, time_ratio_lod_over_full;
+  double seconds = 0;
+  Report report;
+
+  const Report& to_report() const { return report; }
+  std::string brief() const { return report.brief(); }
+};
+
+Result<RaytraceSummary> run_raytrace_job(const RaytraceJob& job);
 
 // Images of one layout rendered by one tracer; what the job and the bench share.
 struct LayoutRender {
