@@ -64,6 +64,10 @@ struct ModelCamera {
 
 struct Model {
   double voxel_size_m = 0;
+  // The name of the session the cameras' frames are of (session.json's
+  // "name"); a frame of another session is never one of the model's cameras.
+  // Empty in models written before it was kept.
+  std::string session;
   Eigen::AlignedBox3d bounds;
   std::vector<ModelCamera> cameras;
   std::vector<FacetRecord> facets;

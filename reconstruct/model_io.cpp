@@ -87,6 +87,7 @@ Status save_model(const fs::path& dir, const Model& m) {
     doc["payloads"]["octree"] = {{"file", "octree.bin"}, {"records", m.octree.size()}};
     doc["octree_max_level"] = m.octree_max_level;
   }
+  if (!m.session.empty()) doc["session"] = m.session;
   if (m.patch_mesh) doc["patch_mesh"] = *m.patch_mesh;
   if (m.surface_mesh) doc["surface_mesh"] = *m.surface_mesh;
   if (m.environment) doc["environment"] = *m.environment;
@@ -113,6 +114,7 @@ Result<Model> load_model(const fs::path& dir) {
     FieldReader doc(*j, (dir / "model.json").string());
     check_format_header(doc, "s2r.model", kModelVersion);
     m.voxel_size_m = doc.positive("voxel_size_m");
+    m.session = doc.string_or("session", "");
     FieldReader b = doc.at("bounds");
     for (const char* key : {"min", "max"}) {
       FieldReader v = b.at(key);

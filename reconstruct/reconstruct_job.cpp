@@ -695,6 +695,7 @@ Result<ReconstructSummary> run_reconstruct_job(const ReconstructJob& job) {
   const CameraDepths depth(surface, *views, evidence, w0, job.textures, job.threads, rep);
   Model model;
   model.voxel_size_m = w0;
+  model.session = in->s.name;
   model.cameras = model_cameras(*views, job.textures);
   // Every camera's depth goes into its texture; without textures each one is
   // made when the facets' visibility test comes to it.

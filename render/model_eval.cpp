@@ -432,8 +432,11 @@ Result<EvalSummary> run_eval_job(const EvalJob& job) {
   auto cameras = SessionCameras::load(job.source);
   if (!cameras) return std::unexpected(cameras.error());
   const Session& s = cameras->session;
+  // The model's own frames: those of its cameras, when the session is the
+  // one it was made from (another session's frame i is a different view).
   std::set<int> in_model;
-  for (const auto& c : r->model.cameras) in_model.insert(c.session_frame);
+  if (r->model.session.empty() || r->model.session == s.name)
+    for (const auto& c : r->model.cameras) in_model.insert(c.session_frame);
   std::error_code ec;
   fs::create_directories(job.out, ec);
   if (ec) return fail("cannot create " + job.out.string() + ": " + ec.message());

@@ -133,6 +133,7 @@ TEST(RenderRig, LegoMattesGiveTheHullAndEvalCompositesOnTheAskedBackground) {
     auto r = run_eval_job(e);
     ASSERT_TRUE(r) << r.error().message;
     EXPECT_EQ(r->mask_source, "matte");
+    EXPECT_EQ(r->held_out_views, 1u);  // val's frame 1 is not train's frame 1
     ASSERT_EQ(r->methods.size(), 1u);
     const EvalMethodFigures& m = r->methods[0];
     std::printf("lego %s: full %.2f dB (SSIM %.3f), masked %.2f dB\n", bg, m.full_psnr_db, m.full_ssim, m.psnr_db);
