@@ -506,6 +506,24 @@ std::vector<ModelCamera> model_cameras(const std::vector<View>& views, bool text
 }
 
 // Every camera's depth image, for its texture.
+// Where a view's matte says background the camera sees nothing of the
+// object: no distance there, so the free-space test discards what is drawn
+// in front of it and no facet takes that camera's texels (the hull, carved
+// at voxel centres, reaches past the silhouette). `stride`: the image is the
+// view's visibility grid (microfacets.h). Returns the pixels cut.
+size_t cut_at_matte(ImageF& d, const ImageU8& matte, int stride) {
+  if (matte.empty() || d.empty()) return 0;
+  const int k = std::max(1, stride), off = (k - 1) / 2;
+  size_t cut = 0;
+  for (int y = 0; y < d.height; ++y)
+    for (int x = 0; x < d.width; ++x) {
+      const int mx = off + x * k, my = off + y * k;
+      float& v = d.data[size_t(y) * size_t(d.width) + size_t(x)];
+      if (v > 0 && mx < matte.width && my < matte.height && matte.at(mx, my) == 0) v = 0, ++cut;
+    }
+  return cut;
+}
+
 std::vector<ImageF> all_camera_depths(const std::vector<View>& views, const CameraDepths& depth, int threads) {
   std::vector<ImageF> distance(views.size());
   Progress progress("camera depth", views.size());
@@ -548,7 +566,11 @@ FacetStats build_model_facets(const ReconstructJob& job, const std::vector<View>
     FacetCamera c{views[i].K, views[i].world_from_camera, job.textures ? &distance[i] : nullptr, {}, depth.stride(i)};
     if (!job.textures) {
       const Intrinsics G = visibility_grid(views[i].K, depth.stride(i));
-      c.distance_at = [&depth, &views, i, G] { return depth(G, views[i].world_from_camera); };
+      c.distance_at = [&depth, &views, i, G] {
+        ImageF d = depth(G, views[i].world_from_camera);
+        cut_at_matte(d, views[i].matte, depth.stride(i));
+        return d;
+      };
       rep.skipped["camera_depth_pixels_off_the_visibility_grid"] +=
           double(views[i].K.width) * views[i].K.height - double(G.width) * G.height;
     }
@@ -700,7 +722,13 @@ Result<ReconstructSummary> run_reconstruct_job(const ReconstructJob& job) {
   // Every camera's depth goes into its texture; without textures each one is
   // made when the facets' visibility test comes to it.
   std::vector<ImageF> distance(views->size());
-  if (job.textures) distance = all_camera_depths(*views, depth, job.threads);
+  if (job.textures) {
+    distance = all_camera_depths(*views, depth, job.threads);
+    size_t cut = 0;
+    for (size_t i = 0; i < views->size(); ++i) cut += cut_at_matte(distance[i], (*views)[i].matte, 1);
+    if (cut) rep.skipped["camera_depth_pixels_outside_the_matte"] = double(cut);
+    sum.camera_depth_pixels_outside_matte = cut;
+  }
   timer.lap("camera_depth");
   if (job.textures) {
     if (auto st = write_textures(job, *views, distance, model.cameras); !st) return std::unexpected(st.error());

@@ -77,6 +77,7 @@ struct ReconstructSummary {
   size_t cameras = 0, held_out_views = 0, views_without_depth = 0;
   FacetStats facets;
   size_t camera_depth_triangles_drawn = 0;
+  size_t camera_depth_pixels_outside_matte = 0;  // cameras' distances cut where their view's matte is 0
   double seconds = 0, seconds_fusion = 0;  // the build (the truth check not counted), fusion alone
   std::optional<ReconstructTruth> truth;   // sessions with ground truth only
   Report report;
