@@ -106,7 +106,7 @@ Result<IntrinsicsResult> calibrate_intrinsics(const std::vector<BoardDetection>&
              std::to_string(g.rms) + " px without it";
     v.rms_px = f.per_view[worst];
     rep.skipped["view_rejected"] += 1;
-    used = trial;
+    used = std::move(trial);
     f = g;
   }
   if (!finite(f.K) || !finite(f.D) || !std::isfinite(f.rms))

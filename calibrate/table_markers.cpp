@@ -1,6 +1,7 @@
 // Turntable axis and table angles from dot markers (calibrate/table_markers.h).
 // OpenCV finds the dots, PCL's RANSAC the table plane, Ceres the joint fit.
 #include "calibrate/table_markers.h"
+#include "core/angles.h"
 
 #include <ceres/ceres.h>
 #include <pcl/point_cloud.h>
@@ -22,7 +23,6 @@ namespace s2r {
 
 namespace {
 
-constexpr double kDeg = std::numbers::pi / 180.0;
 
 struct Dot {
   Eigen::Vector2d pixel;

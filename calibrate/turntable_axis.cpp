@@ -1,5 +1,6 @@
 // One of the few translation units of calibrate/ that include Ceres.
 #include "calibrate/turntable_axis.h"
+#include "core/angles.h"
 #include "calibrate/axis_cost.h"
 
 #include <ceres/ceres.h>
@@ -13,7 +14,6 @@ namespace s2r {
 
 namespace {
 
-constexpr double kDeg = std::numbers::pi / 180.0;
 
 // Holds p's free component along d (the axis has no preferred point along itself).
 struct AxisPointPrior {

@@ -3,6 +3,7 @@
 // curves, its printed patterns as procedural albedo and its lamp as a
 // directional light without shadows that turns with the lab.
 #include "capture/synth_rig.h"
+#include "core/angles.h"
 
 #include <omp.h>
 
@@ -25,7 +26,6 @@ using Eigen::Vector3f;
 
 namespace {
 
-constexpr double kDeg = std::numbers::pi / 180.0;
 
 uint64_t mix(uint64_t x) {  // splitmix64 finaliser
   x += 0x9e3779b97f4a7c15ULL;

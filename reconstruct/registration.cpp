@@ -1,4 +1,5 @@
 #include "reconstruct/registration.h"
+#include "core/angles.h"
 
 #include <algorithm>
 #include <cmath>
@@ -18,7 +19,6 @@ namespace s2r {
 
 namespace {
 
-constexpr double kDeg = std::numbers::pi / 180;
 
 struct Correspondence {
   Eigen::Vector3d p_a, q_b, n_b;  // sensor frames of a and b

@@ -19,7 +19,7 @@ namespace s2r {
 
 namespace {
 
-const char* kVertex = R"(#version 430 core
+const char* kGlossyVertex = R"(#version 430 core
 layout(location = 0) in vec3 pos;
 layout(location = 1) in vec3 nrm;
 layout(location = 2) in vec2 tex;
@@ -35,7 +35,7 @@ void main() {
 }
 )";
 
-const char* kFragment = R"(#version 430 core
+const char* kGlossyFragment = R"(#version 430 core
 in vec3 wpos;
 in vec3 wnrm;
 in vec2 uv;
@@ -156,7 +156,7 @@ bool scene_is_glossy(const RtScene& scene) {
 GlossyRenderer::~GlossyRenderer() = default;
 
 Result<std::unique_ptr<GlossyRenderer>> GlossyRenderer::create(const RtScene& scene, std::shared_ptr<const EnvironmentMap> map) {
-  auto mesh = GlProgram::build(kVertex, kFragment);
+  auto mesh = GlProgram::build(kGlossyVertex, kGlossyFragment);
   if (!mesh) return std::unexpected(mesh.error());
   auto backdrop = GlProgram::build(kBackdropVertex, kBackdropFragment);
   if (!backdrop) return std::unexpected(backdrop.error());

@@ -62,7 +62,7 @@ ReliefMaterial brick_material(int size, double repeats, double depth) {
 
 namespace {
 
-const char* kVertex = R"(#version 430 core
+const char* kMaterialLodVertex = R"(#version 430 core
 layout(location = 0) in vec3 pos;
 layout(location = 1) in vec3 nrm;
 layout(location = 2) in vec3 tan;
@@ -77,7 +77,7 @@ void main() {
 }
 )";
 
-const char* kFragment = R"(#version 430 core
+const char* kMaterialLodFragment = R"(#version 430 core
 in vec3 wpos, wn, wt, wb;
 in vec2 uv;
 out vec4 colour;
@@ -189,7 +189,7 @@ Result<std::unique_ptr<MaterialRenderer>> MaterialRenderer::create(const RtMesh&
     return fail("a relief material needs an RGB albedo and a 1-channel height map");
   if (!(m.repeats > 0) || !(m.depth >= 0) || !std::isfinite(m.repeats) || !std::isfinite(m.depth))
     return fail("relief material: repeats must be > 0 and depth >= 0");
-  auto program = GlProgram::build(kVertex, kFragment);
+  auto program = GlProgram::build(kMaterialLodVertex, kMaterialLodFragment);
   if (!program) return std::unexpected(program.error());
   std::unique_ptr<MaterialRenderer> r(new MaterialRenderer);
   r->gpu_ = std::make_unique<Gpu>(std::move(*program));

@@ -7,7 +7,7 @@
 namespace s2r {
 
 namespace {
-const char* kVertex = R"(#version 330 core
+const char* kPointVertex = R"(#version 330 core
 layout(location = 0) in vec3 position;
 layout(location = 1) in vec3 color;
 uniform mat4 clip_from_world;
@@ -19,7 +19,7 @@ void main() {
   v_color = color;
 }
 )";
-const char* kFragment = R"(#version 330 core
+const char* kPointFragment = R"(#version 330 core
 in vec3 v_color;
 out vec4 frag;
 void main() { frag = vec4(v_color, 1.0); }
@@ -27,7 +27,7 @@ void main() { frag = vec4(v_color, 1.0); }
 }  // namespace
 
 Result<PointRenderer> PointRenderer::create() {
-  auto prog = GlProgram::build(kVertex, kFragment);
+  auto prog = GlProgram::build(kPointVertex, kPointFragment);
   if (!prog) return std::unexpected(prog.error());
   PointRenderer r(std::move(*prog));
   glGenVertexArrays(1, &r.vao_);
