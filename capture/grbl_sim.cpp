@@ -37,11 +37,12 @@ static Result<std::unique_ptr<GrblSim>> open_pty(std::unique_ptr<GrblSim> sim, i
 Result<std::unique_ptr<GrblSim>> GrblSim::start(const GrblFaults& faults) {
   std::unique_ptr<GrblSim> sim(new GrblSim());
   sim->faults_ = faults;
-  sim->alarm_ = faults.start_in_alarm;
+  sim->alarm_ = faults.start_in_alarm || faults.homing_enabled;
+  sim->mask_ = faults.status_mask;
   GrblSim* s = sim.get();
   auto r = open_pty(std::move(sim), &s->master_, &s->slave_, &s->slave_path_);
   if (!r) return r;
-  if (!faults.no_banner) s->reply(std::string(kBanner) + (faults.start_in_alarm ? "[MSG:'$H'|'$X' to unlock]\r\n" : ""));
+  if (!faults.no_banner) s->reply(std::string(kBanner) + (s->alarm_ ? "[MSG:'$H'|'$X' to unlock]\r\n" : ""));
   s->thread_ = std::thread([s] { s->run(); });
   return r;
 }
@@ -110,22 +111,108 @@ double GrblSim::position_locked() const {
 
 double GrblSim::position() const {
   std::lock_guard lock(mu_);
+  return position_locked() - wco_;
+}
+
+double GrblSim::machine_position() const {
+  std::lock_guard lock(mu_);
   return position_locked();
 }
 
 std::string GrblSim::status_line() {
   const double p = position_locked();
-  const char* state = alarm_ ? "Alarm" : now_s() < move_end_ ? "Run" : "Idle";
-  char buf[128];
-  std::snprintf(buf, sizeof buf, "<%s|MPos:%.3f,0.000,0.000|FS:0,0>\r\n", state, p);
+  const bool moving = now_s() < move_end_;
+  const char* state = alarm_ ? "Alarm" : moving ? "Run" : "Idle";
+  char buf[256];
+  int n = std::snprintf(buf, sizeof buf, "<%s|%s:%.3f,0.000,0.000", state, (mask_ & 1) ? "MPos" : "WPos",
+                        (mask_ & 1) ? p : p - wco_);
+  if (mask_ & 2) n += std::snprintf(buf + n, sizeof buf - n, "|Bf:15,128");
+  n += std::snprintf(buf + n, sizeof buf - n, "|FS:0,0");
+  if (limit_pin_) n += std::snprintf(buf + n, sizeof buf - n, "|Pn:X");
+  ++reports_;
+  --ov_countdown_;
+  if (wco_due_ || reports_ % (moving ? 10 : 30) == 0) {
+    n += std::snprintf(buf + n, sizeof buf - n, "|WCO:%.3f,0.000,0.000", wco_);
+    wco_due_ = false;
+    if (ov_countdown_ <= 0) ov_countdown_ = 1;  // Ov waits a report when WCO is sent
+  } else if (ov_countdown_ <= 0) {
+    n += std::snprintf(buf + n, sizeof buf - n, "|Ov:100,100,100");
+    ov_countdown_ = 20;
+  }
+  std::snprintf(buf + n, sizeof buf - n, ">\r\n");
   return buf;
+}
+
+void GrblSim::soft_reset() {
+  const double t = now_s();
+  if (t < move_end_) {  // a reset in motion loses the position: ALARM:3, then Alarm
+    to_ = from_ = 0;
+    alarm_ = true;
+    reply("ALARM:3\r\n");
+  } else {
+    from_ = to_ = position_locked();
+  }
+  move_end_ = move_start_ = 0;
+  if (locked_) alarm_ = true;  // after a limit alarm the board comes back in Alarm
+  if (faults_.homing_enabled) alarm_ = true;
+  locked_ = false;
+  hard_limit_time_ = -1;
+  wco_ = 0;  // G92 offsets do not survive a reset
+  wco_due_ = true;
+  reports_ = 0;
+  ov_countdown_ = 2;
+  pending_lines_.clear();
+  late_replies_.clear();
+  reply(std::string(kBanner) + (alarm_ ? "[MSG:'$H'|'$X' to unlock]\r\n" : ""));
+}
+
+void GrblSim::limit_alarm(int code) {
+  // GRBL's critical event: motion stops where it is and the board is deaf
+  // until a soft reset.
+  from_ = to_ = position_locked();
+  move_end_ = move_start_ = 0;
+  alarm_ = locked_ = true;
+  pending_lines_.clear();
+  late_replies_.clear();
+  reply("ALARM:" + std::to_string(code) + "\r\n[MSG:Reset to continue]\r\n");
+}
+
+void GrblSim::run_due(double t) {
+  if (reset_at_line_ >= 0 && t >= 0.5 * (move_start_ + move_end_)) {  // reset halfway
+    to_ = from_ = 0;  // a reset board knows no position
+    move_end_ = move_start_ = 0;
+    reset_at_line_ = -1;
+    wco_ = 0;
+    wco_due_ = true;
+    reply("ALARM:3\r\n" + std::string(kBanner));
+  }
+  if (hard_limit_time_ >= 0 && t >= hard_limit_time_) {
+    hard_limit_time_ = -1;
+    limit_pin_ = true;
+    limit_alarm(1);
+  }
+  for (size_t i = 0; i < late_replies_.size();)
+    if (t >= late_replies_[i].first) {
+      reply(late_replies_[i].second);
+      late_replies_.erase(late_replies_.begin() + static_cast<long>(i));
+    } else {
+      ++i;
+    }
+  while (!pending_lines_.empty() && t >= pending_lines_.front().first && !locked_) {
+    const std::string line = pending_lines_.front().second;
+    pending_lines_.erase(pending_lines_.begin());
+    handle_line(line);
+  }
 }
 
 void GrblSim::handle_line(const std::string& raw) {
   std::string line;
   for (char c : raw)
     if (c != ' ') line.push_back(static_cast<char>(std::toupper(static_cast<unsigned char>(c))));
-  if (line.empty()) return;
+  if (line.empty()) {  // GRBL answers an empty line "ok" (hosts use it to sync)
+    reply("ok\r\n");
+    return;
+  }
   const int index = gcode_index_++;
   lines_++;
   if (faults_.silent_after >= 0 && index >= faults_.silent_after) {
@@ -140,23 +227,38 @@ void GrblSim::handle_line(const std::string& raw) {
   }
   if (line == "$X") {
     alarm_ = false;
+    limit_pin_ = false;
     reply(out + "[MSG:Caution: Unlocked]\r\nok\r\n");
+    return;
+  }
+  if (line.rfind("$10=", 0) == 0) {
+    mask_ = std::atoi(line.c_str() + 4);
+    reply(out + "ok\r\n");
+    return;
+  }
+  if (line == "$H") {
+    if (!faults_.homing_enabled) {
+      reply(out + "error:5\r\n");  // homing is not enabled in settings
+      return;
+    }
+    from_ = to_ = 0;
+    move_end_ = move_start_ = 0;
+    alarm_ = limit_pin_ = false;
+    reply(out + "ok\r\n");
     return;
   }
   if (alarm_) {
     reply(out + "error:9\r\n");
     return;
   }
-  if (line == "$H") {
-    from_ = to_ = 0;
-    reply(out + "ok\r\n");
-    return;
-  }
-  if (line.rfind("G92", 0) == 0) {  // declare the current position
+  if (line.rfind("G92", 0) == 0) {  // declare the current position: a work offset, the motor stays
     const size_t xp = line.find('X');
     const double v = xp == std::string::npos ? 0.0 : std::strtod(line.c_str() + xp + 1, nullptr);
-    from_ = to_ = std::isfinite(v) ? v : 0.0;
+    // G92 syncs the planner: the offset applies to where the table stops.
+    from_ = to_ = position_locked();
     move_end_ = move_start_ = 0;
+    wco_ = to_ - (std::isfinite(v) ? v : 0.0);
+    wco_due_ = true;
     reply(out + "ok\r\n");
     return;
   }
@@ -171,22 +273,28 @@ void GrblSim::handle_line(const std::string& raw) {
       reply(out + "error:2\r\n");
       return;
     }
-    if (index == faults_.alarm_at) {
-      alarm_ = true;
-      reply(out + "ALARM:2\r\n");
+    if (index == faults_.alarm_at) {  // soft limit: the target is past the travel
+      reply(out);
+      limit_alarm(2);
       return;
     }
     const double start = position_locked();
     from_ = start;
-    to_ = absolute_ ? v : start + v;
+    to_ = absolute_ ? v + wco_ : start + v;
     move_start_ = now_s();
     move_end_ = move_start_ + std::abs(to_ - from_) / faults_.degrees_per_second;
     if (index == faults_.reset_mid_move_at) reset_at_line_ = index;
+    if (index == faults_.hard_limit_at) hard_limit_time_ = 0.5 * (move_start_ + move_end_);
   } else if (line.find_first_not_of("G0123456789.") != std::string::npos && line[0] != '$') {
     reply(out + "error:20\r\n");
     return;
   }
   if (index == faults_.drop_ok_at) return;
+  if (index == faults_.late_ok_at) {
+    reply(out);
+    late_replies_.push_back({now_s() + faults_.late_ok_ms / 1000.0, "ok\r\n"});
+    return;
+  }
   reply(out + "ok\r\n");
 }
 
@@ -194,32 +302,31 @@ void GrblSim::run() {
   std::string buf;
   while (!stop_) {
     pollfd pfd{master_, POLLIN, 0};
-    if (::poll(&pfd, 1, 5) <= 0) {
+    if (::poll(&pfd, 1, 2) <= 0) {
       std::lock_guard lock(mu_);
-      if (reset_at_line_ >= 0 && now_s() >= 0.5 * (move_start_ + move_end_)) {  // reset halfway
-        to_ = from_ = 0;  // a reset board knows no position
-        move_end_ = move_start_ = 0;
-        reset_at_line_ = -1;
-        reply("ALARM:3\r\n" + std::string(kBanner));
-      }
+      run_due(now_s());
       continue;
     }
     char tmp[256];
     ssize_t n = ::read(master_, tmp, sizeof tmp);
     if (n <= 0) continue;
     std::lock_guard lock(mu_);
+    run_due(now_s());
     for (ssize_t i = 0; i < n; ++i) {
       const char c = tmp[i];
       if (silent_) continue;
-      if (c == '?') {
-        reply(status_line());
-      } else if (c == 0x18) {  // soft reset
-        move_end_ = move_start_ = 0;
-        from_ = to_ = position_locked();
+      if (c == 0x18) {  // soft reset: the only thing a locked board hears
         buf.clear();
-        reply(kBanner);
+        soft_reset();
+      } else if (locked_) {
+        continue;
+      } else if (c == '?') {  // real-time: answered before lines waiting to be parsed
+        reply(status_line());
       } else if (c == '\n' || c == '\r') {
-        handle_line(buf);
+        if (faults_.parse_latency_ms > 0)
+          pending_lines_.push_back({now_s() + faults_.parse_latency_ms / 1000.0, buf});
+        else
+          handle_line(buf);
         buf.clear();
       } else {
         buf.push_back(c);

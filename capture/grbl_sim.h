@@ -2,6 +2,20 @@
 // code of the turntable link talks to it as to an Arduino. Used by `s2r
 // capture --sim` and by the tests, with injectable faults. It can also replay
 // a recorded transcript (lines "> host" / "< device") as the device side.
+//
+// It follows GRBL 1.1's documented interface (gnea/grbl, doc/markdown/
+// interface.md and report.md) wherever the driver depends on it: status
+// reports carry MPos or WPos by $10 (WPos = MPos - WCO), a WCO field in the
+// first report after a reset, at once when the offset changes and every 10
+// (moving) or 30 (idle) reports, Ov in the second report and every 20, Bf with
+// $10 bit 1, Pn while a limit pin is triggered; G92 sets the work offset, not
+// the machine position; a limit alarm (ALARM:1 hard, ALARM:2 soft) prints
+// "[MSG:Reset to continue]" and then ignores everything, '?' and $X included,
+// until a soft reset (Ctrl-X), after which the board is in Alarm until $X or
+// $H; G-code in Alarm is answered error:9; an empty line is answered ok; with
+// homing enabled ($22=1) the board boots in Alarm; "ok" means the line was
+// accepted into the planner, not that the motion ended; '?' is a real-time
+// command answered at once, before lines still waiting to be parsed.
 #pragma once
 
 #include <atomic>
@@ -26,6 +40,14 @@ struct GrblFaults {
   bool no_banner = false;      // no banner at start (a Ctrl-X brings one)
   bool start_in_alarm = false;
   double degrees_per_second = 720;
+  // GRBL 1.1 behaviour, not faults:
+  int status_mask = 1;          // $10 at start: bit 0 MPos (else WPos), bit 1 Bf
+  bool homing_enabled = false;  // $22=1: boots (and resets) in Alarm until $H or $X
+  int parse_latency_ms = 0;     // a line is parsed this long after it arrives ('?' at once)
+  // Faults of the link or the board:
+  int hard_limit_at = -1;       // the n-th G-code line's move hits a limit switch halfway (ALARM:1)
+  int late_ok_at = -1;          // the n-th G-code line's "ok" comes late_ok_ms after it
+  int late_ok_ms = 0;
 };
 
 class GrblSim {
@@ -35,7 +57,8 @@ class GrblSim {
   static Result<std::unique_ptr<GrblSim>> replay(const std::filesystem::path& transcript);
   ~GrblSim();
   const std::string& port() const { return slave_path_; }
-  double position() const;  // current table angle (degrees)
+  double position() const;          // current table angle in work coordinates (degrees; what the host commands)
+  double machine_position() const;  // ... in machine coordinates (the motor's count)
   int lines_received() const { return lines_.load(); }
   void unplug();  // closes the device side: the host sees EIO
 
@@ -45,6 +68,9 @@ class GrblSim {
   void run_replay();
   void reply(const std::string& text);
   void handle_line(const std::string& line);
+  void soft_reset();
+  void limit_alarm(int code);
+  void run_due(double t);  // lines whose parse time came, late replies, a reset mid-move
   std::string status_line();
   double position_locked() const;
 
@@ -58,6 +84,15 @@ class GrblSim {
   std::atomic<int> lines_{0};
   mutable std::mutex mu_;
   bool absolute_ = true, alarm_ = false, silent_ = false;
+  bool locked_ = false;      // after a limit alarm: deaf until a soft reset
+  bool limit_pin_ = false;   // a limit switch is pressed (Pn:X)
+  int mask_ = 1;             // $10
+  double wco_ = 0;           // work coordinate offset of the table axis (G92)
+  bool wco_due_ = true;      // report WCO in the next status report
+  int reports_ = 0, ov_countdown_ = 2;
+  double hard_limit_time_ = -1;  // when the move to a limit switch hits it
+  std::vector<std::pair<double, std::string>> pending_lines_;  // (parse time, line)
+  std::vector<std::pair<double, std::string>> late_replies_;   // (send time, text)
   int gcode_index_ = 0, replies_ = 0;
   double from_ = 0, to_ = 0;
   double move_start_ = 0, move_end_ = 0;  // seconds on a steady clock

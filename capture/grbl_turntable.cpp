@@ -44,19 +44,36 @@ std::optional<GrblStatus> parse_grbl_status(const std::string& line, char axis) 
   const std::string body = line.substr(1, line.size() - 2);
   GrblStatus s;
   s.state = body.substr(0, body.find_first_of("|:"));
-  const size_t m = body.find("MPos:");
-  if (m == std::string::npos) return std::nullopt;
-  const int index = axis == 'X' ? 0 : axis == 'Y' ? 1 : 2;
-  size_t p = m + 5;
-  for (int i = 0; i < index; ++i) {
-    p = body.find(',', p);
-    if (p == std::string::npos) return std::nullopt;
-    ++p;
-  }
-  char* end = nullptr;
-  s.position = std::strtod(body.c_str() + p, &end);
-  if (end == body.c_str() + p || !std::isfinite(s.position)) return std::nullopt;
   if (s.state.empty()) return std::nullopt;
+  const int index = axis == 'X' ? 0 : axis == 'Y' ? 1 : axis == 'Z' ? 2 : 3;
+  // The axis' value in a field "NAME:x,y,z[,a]" (fields are '|'-separated, in any order).
+  auto field = [&](const char* name) -> std::optional<std::optional<double>> {
+    const std::string key = std::string("|") + name + ":";
+    const size_t m = body.find(key);
+    if (m == std::string::npos) return std::nullopt;
+    const size_t stop = std::min(body.find('|', m + 1), body.size());
+    size_t p = m + key.size();
+    for (int i = 0; i < index; ++i) {
+      p = body.find(',', p);
+      if (p == std::string::npos || p >= stop) return std::optional<double>();
+      ++p;
+    }
+    char* end = nullptr;
+    const double v = std::strtod(body.c_str() + p, &end);
+    if (end == body.c_str() + p || end > body.c_str() + stop || !std::isfinite(v)) return std::optional<double>();
+    return std::optional<double>(v);
+  };
+  auto mpos = field("MPos");
+  auto wpos = field("WPos");
+  if (mpos.has_value() == wpos.has_value()) return std::nullopt;  // exactly one of them
+  const auto& pos = mpos ? *mpos : *wpos;
+  if (!pos) return std::nullopt;
+  s.position = *pos;
+  s.machine = mpos.has_value();
+  if (auto wco = field("WCO")) {
+    if (!*wco) return std::nullopt;
+    s.offset = **wco;
+  }
   return s;
 }
 
@@ -103,13 +120,46 @@ Status GrblTurntable::wait_banner(std::chrono::milliseconds timeout) {
 }
 
 Status GrblTurntable::check_async(const GrblReply& r) {
-  if (r.kind == GrblReply::kAlarm)
+  if (r.kind == GrblReply::kAlarm) {
+    // Limit alarms are GRBL's critical events: "[MSG:Reset to continue]"
+    // follows and the board hears nothing but a reset.
+    if (r.code == 1 || r.code == 2) halted_alarm_ = r.code;
     return fail(ErrorCode::device_fault, "turntable alarm " + std::to_string(r.code) + ": " + grbl_alarm_meaning(r.code));
-  if (r.kind == GrblReply::kBanner)
+  }
+  if (r.kind == GrblReply::kBanner) {
+    wco_ = 0;  // a reset clears G92
+    halted_alarm_ = 0;
     return fail(ErrorCode::device_fault,
                 "turntable reset itself (" + r.text + "): its position is lost; check power and cabling, "
                 "then resume (the table is re-homed at the current position)");
+  }
+  if (r.text == "[MSG:Reset to continue]") {
+    if (halted_alarm_ == 0) halted_alarm_ = -1;
+    return halted();
+  }
   return {};
+}
+
+Status GrblTurntable::halted() const {
+  const std::string what = halted_alarm_ > 0 ? "alarm " + std::to_string(halted_alarm_) + " (" +
+                                                   grbl_alarm_meaning(halted_alarm_) + ")"
+                                             : "a limit alarm";
+  return fail(ErrorCode::device_fault,
+              "turntable on '" + port_.path() + "' halted after " + what +
+                  ": GRBL ignores every command until it is reset; check the table, then reopen it (opening the "
+                  "port resets the board) and home it again");
+}
+
+void GrblTurntable::drain_late_oks() {
+  const auto deadline = std::chrono::steady_clock::now() + opt_.reply_timeout;
+  while (late_oks_ > 0) {
+    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
+    if (left.count() <= 0) break;
+    auto line = port_.read_line(left);
+    if (!line) break;
+    if (classify_grbl_reply(*line, opt_.axis[0]).kind == GrblReply::kOk) --late_oks_;
+  }
+  late_oks_ = 0;  // what did not come by now was lost, not late
 }
 
 namespace {
@@ -149,11 +199,18 @@ GrblReply classify_grbl_reply(const std::string& line, char axis) {
 }
 
 Status GrblTurntable::command(const std::string& cmd) {
+  if (halted_alarm_ != 0) return halted();
+  // GRBL's replies carry no sequence number: an "ok" that came after its
+  // command's timeout would otherwise be taken as the reply to this one.
+  if (late_oks_ > 0) drain_late_oks();
   if (auto st = port_.write(cmd + "\n"); !st) return st;
   for (;;) {
     auto line = port_.read_line(opt_.reply_timeout);
     if (!line) {
-      if (line.error().is(ErrorCode::timeout)) return fail(ErrorCode::timeout, "no reply to '" + cmd + "' (lost ok?)");
+      if (line.error().is(ErrorCode::timeout)) {
+        ++late_oks_;
+        return fail(ErrorCode::timeout, "no reply to '" + cmd + "' (lost ok?)");
+      }
       return std::unexpected(line.error());
     }
     const GrblReply r = classify_grbl_reply(*line, opt_.axis[0]);
@@ -167,6 +224,7 @@ Status GrblTurntable::command(const std::string& cmd) {
 }
 
 Result<GrblStatus> GrblTurntable::status() {
+  if (halted_alarm_ != 0) return std::unexpected(halted().error());
   int unanswered = 0;
   for (;;) {
     if (auto st = port_.write("?"); !st) return std::unexpected(st.error());
@@ -181,9 +239,16 @@ Result<GrblStatus> GrblTurntable::status() {
         timed_out = true;
         break;
       }
-      const GrblReply r = classify_grbl_reply(*line, opt_.axis[0]);
+      GrblReply r = classify_grbl_reply(*line, opt_.axis[0]);
       if (auto st = check_async(r); !st) return std::unexpected(st.error());
-      if (r.kind == GrblReply::kStatus) return r.status;
+      if (r.kind == GrblReply::kOk && late_oks_ > 0) --late_oks_;
+      if (r.kind == GrblReply::kStatus) {
+        GrblStatus s = r.status;
+        if (s.offset) wco_ = *s.offset;
+        if (s.machine) s.position -= wco_;
+        s.machine = false;
+        return s;
+      }
     }
     if (++unanswered > opt_.retries)
       return fail(ErrorCode::timeout, "turntable on '" + port_.path() + "' is silent: " + std::to_string(unanswered) +

@@ -6,11 +6,20 @@
 //             reset) and wait again.
 //   move_to   "G90 G0 X<deg>" -> "ok" | "error:N" | "ALARM:N", then "?" status
 //             polls ("<Run|MPos:..>" ... "<Idle|MPos:..>"), then a settle time.
+//   position  status reports carry MPos or WPos by the board's $10; moves and
+//             G92 are in work coordinates, so an MPos report is turned into
+//             the work position with the last WCO the board sent
+//             (WPos = MPos - WCO; GRBL sends WCO after a reset, when it
+//             changes and every 10-30 reports).
 //   faults    error:N and ALARM:N map to messages with GRBL's meaning; a lost
 //             "ok" is recovered by the status poll (absolute moves are safe to
-//             re-check); garbage bytes and partial lines are skipped; silence
-//             is retried then reported; a reset mid-move (a new banner) and an
-//             unplugged board (EIO/ENODEV) are reported as such.
+//             re-check), and one that comes late is matched to its own
+//             command before the next is sent; after a limit alarm
+//             ("[MSG:Reset to continue]") GRBL ignores everything until a
+//             reset, which is said as such, not as silence; garbage bytes and
+//             partial lines are skipped; silence is retried then reported; a
+//             reset mid-move (a new banner) and an unplugged board
+//             (EIO/ENODEV) are reported as such.
 #pragma once
 
 #include <chrono>
@@ -38,11 +47,15 @@ struct GrblOptions {
 };
 
 struct GrblStatus {
-  std::string state;  // Idle, Run, Hold, Alarm, Home, Jog, Door, Check, Sleep
-  double position = 0;
+  std::string state;      // Idle, Run, Hold, Alarm, Home, Jog, Door, Check, Sleep (sub-state cut off)
+  double position = 0;    // the axis as reported (MPos or WPos); GrblTurntable::status() gives WPos
+  bool machine = true;    // the report was MPos (else WPos)
+  std::optional<double> offset;  // the axis' WCO, in the reports that carry one
 };
 
-// "<Idle|MPos:15.000,0.000,0.000|FS:0,0>" -> state and the axis position.
+// "<Idle|MPos:15.000,0.000,0.000|FS:0,0>" or "<Idle|WPos:...|WCO:...>" ->
+// state, the axis position and its work offset if reported; other fields
+// (Bf, FS, Ov, Pn, ...) in any order are skipped.
 std::optional<GrblStatus> parse_grbl_status(const std::string& line, char axis = 'X');
 
 // What one line from the board says. Line noise glued to its front ("~#ok")
@@ -65,16 +78,21 @@ class GrblTurntable : public Turntable {
   Status move_to(double degrees) override;
   Result<double> position() override;
   std::string describe() const override { return "grbl:" + port_.path() + " (" + banner_ + ")"; }
-  Result<GrblStatus> status();
+  Result<GrblStatus> status();  // position in work coordinates
 
  private:
   GrblTurntable(SerialPort port, GrblOptions o) : port_(std::move(port)), opt_(std::move(o)) {}
   Status wait_banner(std::chrono::milliseconds timeout);
   Status command(const std::string& line);  // waits for ok / error / alarm
   Status check_async(const GrblReply& reply);  // ALARM / reset lines at any time
+  Status halted() const;       // the error while the board waits for a reset
+  void drain_late_oks();       // before a command: the oks that came after their timeout
   SerialPort port_;
   GrblOptions opt_;
   std::string banner_;
+  double wco_ = 0;             // the last work coordinate offset reported
+  int late_oks_ = 0;           // commands that timed out and may still be answered
+  int halted_alarm_ = 0;       // ALARM code after which the board ignores all but a reset (0: none)
 };
 
 }  // namespace s2r

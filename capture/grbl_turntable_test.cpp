@@ -49,9 +49,28 @@ TEST(GrblStatus, Parses) {
   s = parse_grbl_status("<Run|MPos:-2.5,1,2|FS:500,0>", 'Y');
   ASSERT_TRUE(s);
   EXPECT_DOUBLE_EQ(s->position, 1.0);
-  EXPECT_FALSE(parse_grbl_status("<Idle|WPos:1,2,3>"));
   EXPECT_FALSE(parse_grbl_status("ok"));
   EXPECT_FALSE(parse_grbl_status("<Idle|MPos:x,1,2>"));
+  // GRBL 1.1: WPos instead of MPos by $10, WCO/Ov/Pn/Bf fields in any order,
+  // sub-states, a fourth axis.
+  s = parse_grbl_status("<Idle|WPos:1,2,3|Bf:15,128|FS:0,0|WCO:10.5,0,0>");
+  ASSERT_TRUE(s);
+  EXPECT_DOUBLE_EQ(s->position, 1.0);
+  EXPECT_FALSE(s->machine);
+  ASSERT_TRUE(s->offset);
+  EXPECT_DOUBLE_EQ(*s->offset, 10.5);
+  s = parse_grbl_status("<Hold:0|MPos:5,0,0|FS:0,0|Pn:X|Ov:100,100,100>");
+  ASSERT_TRUE(s);
+  EXPECT_EQ(s->state, "Hold");
+  EXPECT_TRUE(s->machine);
+  EXPECT_FALSE(s->offset);
+  s = parse_grbl_status("<Run|MPos:0,0,0,33.5|FS:0,0>", 'A');
+  ASSERT_TRUE(s);
+  EXPECT_DOUBLE_EQ(s->position, 33.5);
+  EXPECT_FALSE(parse_grbl_status("<Idle|MPos:1,2,3|WPos:1,2,3>"));  // never both
+  EXPECT_FALSE(parse_grbl_status("<Idle|FS:0,0>"));
+  EXPECT_FALSE(parse_grbl_status("<Idle|MPos:1,2,3|WCO:q,0,0>"));
+  EXPECT_FALSE(parse_grbl_status("<Idle|MPos:1|FS:0,0>", 'Y'));  // Y's value is not in the field
 }
 
 TEST(GrblReply, ClassifiesWhatTheBoardSays) {
@@ -156,6 +175,136 @@ TEST(GrblTurntable, AlarmIsAClearError) {
   EXPECT_NE(st.error().message.find("alarm 2"), std::string::npos) << st.error().message;
   EXPECT_TRUE(st.error().is(ErrorCode::device_fault));
   EXPECT_NE(st.error().message.find("soft limit"), std::string::npos);
+  // GRBL is deaf after a limit alarm: said as such, not as silence.
+  auto p = r.table->position();
+  ASSERT_FALSE(p);
+  EXPECT_NE(p.error().message.find("halted after alarm 2"), std::string::npos) << p.error().message;
+  EXPECT_NE(p.error().message.find("reset"), std::string::npos) << p.error().message;
+  EXPECT_TRUE(p.error().is(ErrorCode::device_fault));
+}
+
+TEST(GrblTurntable, WorkPositionUnderEveryStatusMask) {
+  // $10 bit 0 chooses MPos or WPos, bit 1 adds Bf; G92 moves the work
+  // origin, not the motor: the driver reports and commands work positions.
+  for (int mask : {0, 1, 2, 3}) {
+    SCOPED_TRACE("$10=" + std::to_string(mask));
+    GrblFaults f;
+    f.status_mask = mask;
+    auto r = connect(f);
+    ASSERT_TRUE(r.table);
+    ASSERT_TRUE(r.table->home());
+    ASSERT_TRUE(r.table->move_to(50));
+    ASSERT_TRUE(r.table->set_position(0));  // the origin moves to 50 in machine coordinates
+    EXPECT_NEAR(r.sim->machine_position(), 50, 1e-3);
+    auto p = r.table->position();
+    ASSERT_TRUE(p) << p.error().message;
+    EXPECT_NEAR(*p, 0, 1e-3);
+    for (double a : {10.0, 300.0}) {
+      auto st = r.table->move_to(a);
+      ASSERT_TRUE(st) << st.error().message;
+      EXPECT_NEAR(*r.table->position(), a, 1e-3);
+      EXPECT_NEAR(r.sim->position(), a, 1e-3);
+      EXPECT_NEAR(r.sim->machine_position(), a + 50, 1e-3);
+    }
+    // One command line each: no move was sent twice.
+    EXPECT_EQ(r.sim->lines_received(), 5);
+  }
+}
+
+TEST(GrblTurntable, HardLimitHaltsUntilAResetThenAlarmNeedsUnlock) {
+  GrblFaults f;
+  f.hard_limit_at = 1;
+  f.degrees_per_second = 180;
+  auto r = connect(f);
+  ASSERT_TRUE(r.table->home());
+  auto st = r.table->move_to(90);
+  ASSERT_FALSE(st);
+  EXPECT_NE(st.error().message.find("alarm 1"), std::string::npos) << st.error().message;
+  EXPECT_NE(st.error().message.find("hard limit"), std::string::npos) << st.error().message;
+  for (int i = 0; i < 2; ++i) {  // every later call: halted, not "silent"
+    auto p = r.table->position();
+    ASSERT_FALSE(p);
+    EXPECT_NE(p.error().message.find("halted after alarm 1"), std::string::npos) << p.error().message;
+    EXPECT_EQ(p.error().message.find("silent"), std::string::npos) << p.error().message;
+  }
+  r.table.reset();
+  {  // the board itself ignores '?' and $X while halted
+    auto port = SerialPort::open(r.sim->port(), 115200);
+    ASSERT_TRUE(port);
+    ASSERT_TRUE(port->write("?$X\n"));
+    auto line = port->read_line(200ms);
+    EXPECT_FALSE(line) << *line;
+  }
+  // Reopening resets it (Ctrl-X): it comes back in Alarm, G-code is refused
+  // with error:9, and $X unlocks it.
+  auto t = GrblTurntable::open(r.sim->port(), fast());
+  ASSERT_FALSE(t);
+  EXPECT_NE(t.error().message.find("alarm state"), std::string::npos) << t.error().message;
+  {
+    auto port = SerialPort::open(r.sim->port(), 115200);
+    ASSERT_TRUE(port);
+    ASSERT_TRUE(port->write("G90 G0 X10\n"));
+    bool refused = false;
+    for (int i = 0; i < 5 && !refused; ++i)
+      if (auto l = port->read_line(300ms)) refused = classify_grbl_reply(*l).code == 9;
+    EXPECT_TRUE(refused);
+  }
+  auto o = fast();
+  o.unlock_alarm = true;
+  t = GrblTurntable::open(r.sim->port(), o);
+  ASSERT_TRUE(t) << t.error().message;
+  ASSERT_TRUE((*t)->home());
+  EXPECT_TRUE((*t)->move_to(20));
+  EXPECT_NEAR(r.sim->position(), 20, 1e-3);
+}
+
+TEST(GrblTurntable, LateOkIsMatchedToItsOwnCommand) {
+  // The first move's "ok" comes after the reply timeout; lines are parsed
+  // 20 ms after they arrive while '?' is answered at once, as on the board.
+  // The late ok must not be taken as the next move's reply (a status poll
+  // would then see the table at the old target and send the move again).
+  GrblFaults f;
+  f.late_ok_at = 1;
+  f.late_ok_ms = 450;
+  f.parse_latency_ms = 20;
+  auto r = connect(f);
+  ASSERT_TRUE(r.table->home());
+  for (double a : {45.0, 90.0, 135.0}) {
+    auto st = r.table->move_to(a);
+    ASSERT_TRUE(st) << st.error().message;
+    EXPECT_NEAR(r.sim->position(), a, 1e-3);
+  }
+  EXPECT_EQ(r.sim->lines_received(), 4);  // G92 and three moves, none twice
+}
+
+TEST(GrblSim, AnswersAnEmptyLineAndBootsInAlarmWithHoming) {
+  GrblFaults f;
+  f.homing_enabled = true;
+  auto sim = GrblSim::start(f);
+  ASSERT_TRUE(sim);
+  auto port = SerialPort::open((*sim)->port(), 115200);
+  ASSERT_TRUE(port);
+  std::vector<std::string> lines;
+  auto read_until = [&](const std::string& want) {
+    for (int i = 0; i < 10; ++i) {
+      auto l = port->read_line(300ms);
+      if (!l) return false;
+      lines.push_back(*l);
+      if (l->find(want) != std::string::npos) return true;
+    }
+    return false;
+  };
+  EXPECT_TRUE(read_until("'$H'|'$X' to unlock"));
+  ASSERT_TRUE(port->write("\n"));
+  EXPECT_TRUE(read_until("ok"));
+  ASSERT_TRUE(port->write("?"));
+  EXPECT_TRUE(read_until("<Alarm|MPos:"));
+  EXPECT_NE(lines.back().find("WCO:"), std::string::npos) << lines.back();  // first report after a reset
+  ASSERT_TRUE(port->write("$H\n"));
+  EXPECT_TRUE(read_until("ok"));
+  ASSERT_TRUE(port->write("?"));
+  EXPECT_TRUE(read_until("<Idle|"));
+  EXPECT_NE(lines.back().find("Ov:"), std::string::npos) << lines.back();  // the second report
 }
 
 TEST(GrblTurntable, StartInAlarmNeedsUnlock) {

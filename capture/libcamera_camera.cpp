@@ -1,5 +1,6 @@
 // The only translation unit that includes libcamera.
 #include "capture/libcamera_camera.h"
+#include "capture/pixel_formats.h"
 
 #include <libcamera/libcamera.h>
 #include <sys/mman.h>
@@ -10,6 +11,8 @@
 #include <deque>
 #include <map>
 #include <mutex>
+
+#include <spdlog/spdlog.h>
 
 namespace s2r {
 namespace lc = libcamera;
@@ -72,8 +75,15 @@ Result<std::unique_ptr<LibcameraCamera>> LibcameraCamera::open(const std::string
   sc.pixelFormat = lc::formats::RGB888;
   sc.size = lc::Size(static_cast<unsigned>(width), static_cast<unsigned>(height));
   sc.bufferCount = 4;
-  if (s->config->validate() == lc::CameraConfiguration::Invalid)
+  const auto validity = s->config->validate();
+  if (validity == lc::CameraConfiguration::Invalid)
     return fail("libcamera: configuration " + sc.toString() + " is invalid for this camera");
+  // libcamera may adjust the size to what the pipeline can make (vimc: 640x480
+  // becomes 636x480); the frames then have its size, and the user is told.
+  if (validity == lc::CameraConfiguration::Adjusted &&
+      (int(sc.size.width) != width || int(sc.size.height) != height))
+    spdlog::warn("libcamera: camera '{}' cannot deliver {}x{}; it delivers {}x{} instead", s->camera->id(), width,
+                 height, sc.size.width, sc.size.height);
   if (sc.pixelFormat != lc::formats::RGB888)
     return fail(ErrorCode::unsupported, "libcamera: camera cannot deliver RGB888 (offers " + sc.pixelFormat.toString() + ")");
   if (s->camera->configure(s->config.get()) != 0) return fail("libcamera: configure failed for " + sc.toString());
@@ -143,6 +153,7 @@ Result<CapturedFrame> LibcameraCamera::grab() {
   CapturedFrame f;
   f.timestamp_ns = static_cast<int64_t>(md.timestamp);
   f.sequence = md.sequence;
+  f.fourcc = kFourccBGR3;
   f.rgb = ImageU8(s_->width, s_->height, 3);
   const auto& map = s_->maps.at(fb);
   const auto* base = static_cast<const uint8_t*>(map.first) + fb->planes()[0].offset;

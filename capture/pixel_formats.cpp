@@ -10,8 +10,15 @@
 namespace s2r {
 
 std::string fourcc_name(uint32_t f) {
+  // As v4l2-ctl prints them: bit 31 marks a big-endian variant
+  // (v4l2_fourcc_be), seven bits a character; "Y16 -BE".
+  const bool big_endian = f & (1u << 31);
   std::string s;
-  for (int i = 0; i < 4; ++i) s.push_back(static_cast<char>((f >> (8 * i)) & 0xff));
+  for (int i = 0; i < 4; ++i) {
+    const char c = static_cast<char>((f >> (8 * i)) & 0x7f);
+    s.push_back(c >= 0x20 && c < 0x7f ? c : '.');
+  }
+  if (big_endian) return s + "-BE";
   while (!s.empty() && s.back() == ' ') s.pop_back();
   return s;
 }

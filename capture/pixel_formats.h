@@ -21,6 +21,8 @@ constexpr uint32_t fourcc(char a, char b, char c, char d) {
 inline constexpr uint32_t kFourccYUYV = fourcc('Y', 'U', 'Y', 'V');
 inline constexpr uint32_t kFourccMJPG = fourcc('M', 'J', 'P', 'G');
 inline constexpr uint32_t kFourccGREY = fourcc('G', 'R', 'E', 'Y');
+// B, G, R bytes: what libcamera's RGB888 (DRM_FORMAT_RGB888) is in memory.
+inline constexpr uint32_t kFourccBGR3 = fourcc('B', 'G', 'R', '3');
 inline constexpr uint32_t kFourccZ16 = fourcc('Z', '1', '6', ' ');
 std::string fourcc_name(uint32_t f);
 bool is_depth_format(uint32_t f);

@@ -195,7 +195,18 @@ Result<CapturedFrame> V4l2Camera::grab() {
   for (;;) {
     const int pr = io_->poll(cfg_.timeout_ms);
     if (pr == -EINTR) continue;
-    if (pr < 0) return std::unexpected(fail_errno("poll", -pr).error());
+    if (pr < 0) {
+      // The kernel answers EPOLLERR both when the device is gone and after a
+      // fatal streaming error (vb2_queue_error), where the application must
+      // stop streaming; only a device still registered accepts STREAMOFF.
+      int type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
+      const int off = io_->ioctl(VIDIOC_STREAMOFF, &type);
+      streaming_ = false;
+      if (off == 0)
+        return fail(ErrorCode::device_fault, path_ + ": the driver reported a fatal streaming error (the device is "
+                                                     "still there; streaming was stopped: start it again)");
+      return std::unexpected(fail_errno("poll", -pr).error());
+    }
     if (pr == 0) return fail(ErrorCode::timeout, path_ + ": timed out after " + std::to_string(cfg_.timeout_ms) + " ms waiting for a frame");
     v4l2_buffer b = mmap_buffer(0);
     const int r = io_->ioctl(VIDIOC_DQBUF, &b);

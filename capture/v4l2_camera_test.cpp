@@ -165,6 +165,15 @@ TEST(V4l2Camera, FaultsAreClear) {
 
 // A stride shorter than a row made the Z16 decoder read past the frame
 // (found by fuzz/fuzz_v4l2_replay.cpp; the recording is its seed now).
+TEST(PixelFormats, FourccNamesAsV4l2CtlPrintsThem) {
+  EXPECT_EQ(fourcc_name(kFourccYUYV), "YUYV");
+  EXPECT_EQ(fourcc_name(kFourccZ16), "Z16");  // trailing blanks trimmed
+  // vivid offers big-endian formats: v4l2_fourcc_be('Y','1','6',' ').
+  EXPECT_EQ(fourcc_name(fourcc('Y', '1', '6', ' ') | (1u << 31)), "Y16 -BE");
+  EXPECT_EQ(fourcc_name(0), "....");
+  for (char c : fourcc_name(0xffffffffu)) EXPECT_TRUE(c >= 0x20 && c < 0x7f);  // ASCII only
+}
+
 TEST(PixelFormats, RowsShorterThanTheirPixelsAreErrors) {
   const std::string data(16 * 8 * 2, '\0');
   auto z = z16_to_depth(data, 16, 8, 1);

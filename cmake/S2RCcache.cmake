@@ -6,7 +6,10 @@
 function(s2r_use_ccache root)
   find_program(CCACHE_PROGRAM ccache)
   if(CCACHE_PROGRAM)
-    set(launcher ${CMAKE_COMMAND} -E env CCACHE_BASEDIR=${root} CCACHE_NOHASHDIR=1 ${CCACHE_PROGRAM})
+    # The sloppiness lets ccache cache compiles that use the tests'
+    # precompiled header (they also pass -fpch-preprocess, S2RHelpers.cmake).
+    set(launcher ${CMAKE_COMMAND} -E env CCACHE_BASEDIR=${root} CCACHE_NOHASHDIR=1
+        CCACHE_SLOPPINESS=pch_defines,time_macros ${CCACHE_PROGRAM})
     set(CMAKE_CXX_COMPILER_LAUNCHER ${launcher} PARENT_SCOPE)
     set(CMAKE_C_COMPILER_LAUNCHER ${launcher} PARENT_SCOPE)
   endif()

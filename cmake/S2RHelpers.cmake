@@ -65,17 +65,46 @@ function(s2r_warnings target)
   endif()
 endfunction()
 
+# Every test parses GoogleTest, Eigen and nlohmann::json first: one
+# precompiled header of them (and core/paths.h) serves all the tests, which
+# saves a third of a test's compile time. S2R_TEST_PCH=OFF includes them as
+# plain headers.
+option(S2R_TEST_PCH "Tests share one precompiled header" ON)
+
+# The build's paths by call (core/paths.h), not as literals: the test's
+# compile command is the same in every checkout, so ccache hits across them.
+set(S2R_TEST_DEFINITIONS "S2R_DATA_DIR=::s2r::build_data_dir()" "S2R_SOURCE_DIR=::s2r::build_source_dir()"
+    "S2R_BINARY_DIR=::s2r::build_binary_dir()")
+
+function(s2r_test_pch)
+  if(TARGET s2r_test_pch)
+    return()
+  endif()
+  file(CONFIGURE OUTPUT ${CMAKE_BINARY_DIR}/s2r_test_pch.cpp CONTENT "// The tests' precompiled header (cmake/S2RHelpers.cmake).\n")
+  add_library(s2r_test_pch OBJECT ${CMAKE_BINARY_DIR}/s2r_test_pch.cpp)
+  target_include_directories(s2r_test_pch PRIVATE ${CMAKE_SOURCE_DIR})
+  target_link_libraries(s2r_test_pch PRIVATE GTest::gtest Eigen3::Eigen nlohmann_json::nlohmann_json)
+  target_compile_definitions(s2r_test_pch PRIVATE ${S2R_TEST_DEFINITIONS})
+  target_precompile_headers(s2r_test_pch PRIVATE
+    <gtest/gtest.h> <Eigen/Core> <Eigen/Geometry> <nlohmann/json.hpp>
+    <algorithm> <cmath> <filesystem> <fstream> <functional> <map> <memory> <optional> <string> <vector>
+    [["core/paths.h"]])
+  s2r_warnings(s2r_test_pch)
+endfunction()
+
 # s2r_test(NAME SRCS ... LINK ... [LABELS ...])  -> CTest test "NAME"
 function(s2r_test name)
   cmake_parse_arguments(A "" "" "SRCS;LINK;LABELS" ${ARGN})
   add_executable(${name} ${A_SRCS})
   target_link_libraries(${name} PRIVATE ${A_LINK} GTest::gtest_main)
-  # The build's paths by call (core/paths.h), not as literals: the test's
-  # compile command is the same in every checkout, so ccache hits across them.
-  target_compile_definitions(${name} PRIVATE
-    "S2R_DATA_DIR=::s2r::build_data_dir()" "S2R_SOURCE_DIR=::s2r::build_source_dir()"
-    "S2R_BINARY_DIR=::s2r::build_binary_dir()")
-  target_compile_options(${name} PRIVATE -include core/paths.h)
+  target_compile_definitions(${name} PRIVATE ${S2R_TEST_DEFINITIONS})
+  if(S2R_TEST_PCH)
+    s2r_test_pch()
+    target_precompile_headers(${name} REUSE_FROM s2r_test_pch)
+    target_compile_options(${name} PRIVATE -fpch-preprocess)
+  else()
+    target_compile_options(${name} PRIVATE -include core/paths.h)
+  endif()
   s2r_warnings(${name})
   add_test(NAME ${name} COMMAND ${name})
   set(labels unit ${A_LABELS})
