@@ -42,6 +42,14 @@ struct InspectArgs {
   bool decode = false;
 };
 struct DevicesArgs {};
+// s2r turntable: talk to a GRBL turntable by hand (or to the simulated one).
+struct TurntableArgs {
+  std::string port;
+  bool sim = false, home = false, unlock = false;
+  int baud = 115200;
+  std::vector<double> moves;
+  std::string transcript;
+};
 struct CaptureArgs {
   CaptureOptions capture;
   DeviceOptions devices;
@@ -139,7 +147,7 @@ struct SummaryArgs {
 // so a command without a runner does not link.
 using Chosen =
     std::variant<std::monostate, std::shared_ptr<SynthArgs>, std::shared_ptr<ImportArgs>, std::shared_ptr<InspectArgs>,
-                 std::shared_ptr<DevicesArgs>, std::shared_ptr<CaptureArgs>, std::shared_ptr<IntrinsicsArgs>,
+                 std::shared_ptr<DevicesArgs>, std::shared_ptr<TurntableArgs>, std::shared_ptr<CaptureArgs>, std::shared_ptr<IntrinsicsArgs>,
                  std::shared_ptr<DepthCalibrationArgs>, std::shared_ptr<AxisArgs>, std::shared_ptr<MarkersArgs>,
                  std::shared_ptr<RegisterArgs>, std::shared_ptr<ReconstructArgs>, std::shared_ptr<PreviewArgs>,
                  std::shared_ptr<RenderArgs>, std::shared_ptr<EvalArgs>, std::shared_ptr<ViewArgs>,

@@ -128,6 +128,25 @@ void add_devices(CLI::App& app, Chosen& chosen) {
   sub->callback([&chosen] { chosen = std::make_shared<DevicesArgs>(); });
 }
 
+void add_turntable(CLI::App& app, Chosen& chosen) {
+  auto* sub = app.add_subcommand("turntable",
+                                 "Talk to a GRBL turntable: its banner and status, then homing and moves in order "
+                                 "(a check of the table and its link before a capture)");
+  auto a = std::make_shared<TurntableArgs>();
+  auto* port = sub->add_option("port", a->port, "serial port (e.g. /dev/ttyUSB0)");
+  auto* sim = sub->add_flag("--sim", a->sim, "the simulated GRBL firmware on a pseudo-terminal instead of a port");
+  port->excludes(sim);
+  sub->add_option("--baud", a->baud, "baud rate")->capture_default_str()->check(CLI::PositiveNumber);
+  sub->add_flag("--home", a->home, "declare the current angle 0 (G92) first");
+  sub->add_flag("--unlock", a->unlock, "unlock a board that starts in Alarm ($X)");
+  sub->add_option("--move", a->moves, "move to this angle (degrees; repeat for several)")->take_all();
+  sub->add_option("--transcript", a->transcript, "append every line both ways to this file");
+  sub->callback([a, &chosen] {
+    if (a->port.empty() && !a->sim) throw CLI::ValidationError("turntable", "give a serial port or --sim");
+    chosen = a;
+  });
+}
+
 void add_inspect(CLI::App& app, Chosen& chosen) {
   auto* sub = app.add_subcommand("inspect", "Validate a session and print a summary");
   auto a = std::make_shared<InspectArgs>();
@@ -143,6 +162,7 @@ void add_data_commands(CLI::App& app, Chosen& chosen) {
   add_import(app, chosen);
   add_inspect(app, chosen);
   add_devices(app, chosen);
+  add_turntable(app, chosen);
   add_capture(app, chosen);
   add_calibrate(app, chosen);
 }

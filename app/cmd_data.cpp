@@ -1,5 +1,6 @@
 // Runs the subcommands that make or transform data: synth, import, inspect,
 // devices, capture, calibrate (their flags: app/cli_data.cpp).
+#include <chrono>
 #include <cstdio>
 #include <csignal>
 
@@ -12,6 +13,8 @@
 #include "calibrate/turntable_axis.h"
 #include "capture/capture_devices.h"
 #include "capture/capture_session.h"
+#include "capture/grbl_sim.h"
+#include "capture/grbl_turntable.h"
 #include "capture/import_datasets.h"
 #include "capture/session.h"
 #include "capture/synth_rig.h"
@@ -229,6 +232,40 @@ int run(const MarkersArgs& a) {
 
 int run(const DevicesArgs&) {
   for (const auto& l : list_capture_devices()) std::printf("%s\n", l.c_str());
+  return 0;
+}
+
+int run(const TurntableArgs& a) {
+  std::unique_ptr<GrblSim> sim;
+  std::string port = a.port;
+  if (a.sim) {
+    auto s = GrblSim::start();
+    if (!s) return error(s.error().message);
+    sim = std::move(*s);
+    port = sim->port();
+  }
+  GrblOptions o;
+  o.baud = a.baud;
+  o.unlock_alarm = a.unlock;
+  o.transcript = a.transcript;
+  auto t = GrblTurntable::open(port, o);
+  if (!t) return error(t.error().message);
+  std::printf("%s\n", (*t)->describe().c_str());
+  auto s = (*t)->status();
+  if (!s) return error(s.error().message);
+  std::printf("state %s, at %.3f deg\n", s->state.c_str(), s->position);
+  if (a.home) {
+    if (auto st = (*t)->home(); !st) return error(st.error().message);
+    std::printf("homed: the current angle is 0\n");
+  }
+  for (double deg : a.moves) {
+    const auto t0 = std::chrono::steady_clock::now();
+    if (auto st = (*t)->move_to(deg); !st) return error(st.error().message);
+    auto p = (*t)->position();
+    if (!p) return error(p.error().message);
+    std::printf("moved to %.3f deg (asked %.3f) in %.2f s\n", *p, deg,
+                std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+  }
   return 0;
 }
 

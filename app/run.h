@@ -20,6 +20,7 @@ int run(const SynthArgs& a);  // app/cmd_data.cpp
 int run(const ImportArgs& a);
 int run(const InspectArgs& a);
 int run(const DevicesArgs& a);
+int run(const TurntableArgs& a);
 int run(const CaptureArgs& a);
 int run(const IntrinsicsArgs& a);
 int run(const DepthCalibrationArgs& a);

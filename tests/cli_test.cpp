@@ -29,7 +29,7 @@ Run run_s2r(const std::string& args) {
 TEST(Cli, HelpListsTheDesignSubcommands) {
   auto r = run_s2r("--help");
   EXPECT_EQ(r.code, 0);
-  for (const char* sub : {"synth", "import", "devices", "capture", "calibrate", "register", "reconstruct", "render",
+  for (const char* sub : {"synth", "import", "devices", "turntable", "capture", "calibrate", "register", "reconstruct", "render",
                           "eval", "view", "raytrace", "envmap", "bench", "preview", "inspect"})
     EXPECT_NE(r.out.find(sub), std::string::npos) << sub << "\n" << r.out;
 }
@@ -115,6 +115,21 @@ TEST(Cli, SummaryGathersReportsPlotsAndImages) {
   EXPECT_TRUE(fs::exists(dir / "index.md"));
   EXPECT_EQ(run_s2r("summary " + (dir / "missing").string()).code, 1);
   fs::remove_all(dir);
+}
+
+TEST(Cli, TurntableTalksToTheSimulatedFirmwareAndNamesBadInput) {
+  auto r = run_s2r("turntable --sim --home --move 90 --move 180.5");
+  ASSERT_EQ(r.code, 0) << r.out;
+  EXPECT_NE(r.out.find("Grbl 1.1h"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("state Idle"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("moved to 90.000 deg"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("moved to 180.500 deg"), std::string::npos) << r.out;
+  r = run_s2r("turntable");
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.out.find("give a serial port or --sim"), std::string::npos) << r.out;
+  r = run_s2r("turntable /dev/ttyUSB-none");
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.out.find("cannot open serial port"), std::string::npos) << r.out;
 }
 
 TEST(Cli, EnvmapBuildsChecksAndNamesBadInput) {
