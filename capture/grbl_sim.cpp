@@ -143,6 +143,13 @@ std::string GrblSim::status_line() {
   return buf;
 }
 
+void GrblSim::forget_offsets() {
+  wco_ = 0;  // G92 offsets do not survive a reset
+  wco_due_ = true;  // WCO in the first report after it, Ov in the second
+  reports_ = 0;
+  ov_countdown_ = 2;
+}
+
 void GrblSim::soft_reset() {
   const double t = now_s();
   if (t < move_end_) {  // a reset in motion loses the position: ALARM:3, then Alarm
@@ -157,10 +164,7 @@ void GrblSim::soft_reset() {
   if (faults_.homing_enabled) alarm_ = true;
   locked_ = false;
   hard_limit_time_ = -1;
-  wco_ = 0;  // G92 offsets do not survive a reset
-  wco_due_ = true;
-  reports_ = 0;
-  ov_countdown_ = 2;
+  forget_offsets();
   pending_lines_.clear();
   late_replies_.clear();
   reply(std::string(kBanner) + (alarm_ ? "[MSG:'$H'|'$X' to unlock]\r\n" : ""));
@@ -182,8 +186,7 @@ void GrblSim::run_due(double t) {
     to_ = from_ = 0;  // a reset board knows no position
     move_end_ = move_start_ = 0;
     reset_at_line_ = -1;
-    wco_ = 0;
-    wco_due_ = true;
+    forget_offsets();
     reply("ALARM:3\r\n" + std::string(kBanner));
   }
   if (hard_limit_time_ >= 0 && t >= hard_limit_time_) {

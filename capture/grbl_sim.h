@@ -69,6 +69,7 @@ class GrblSim {
   void reply(const std::string& text);
   void handle_line(const std::string& line);
   void soft_reset();
+  void forget_offsets();  // what a reset clears: G92, the report counters
   void limit_alarm(int code);
   void run_due(double t);  // lines whose parse time came, late replies, a reset mid-move
   std::string status_line();

@@ -108,7 +108,7 @@ Result<std::unique_ptr<GrblTurntable>> GrblTurntable::open(const std::string& pa
 Status GrblTurntable::wait_banner(std::chrono::milliseconds timeout) {
   const auto deadline = std::chrono::steady_clock::now() + timeout;
   for (;;) {
-    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
+    const auto left = ms_until(deadline);
     if (left.count() <= 0) return fail(ErrorCode::timeout, "timed out waiting for the banner");
     auto line = port_.read_line(left);
     if (!line) return std::unexpected(line.error());
@@ -153,7 +153,7 @@ Status GrblTurntable::halted() const {
 void GrblTurntable::drain_late_oks() {
   const auto deadline = std::chrono::steady_clock::now() + opt_.reply_timeout;
   while (late_oks_ > 0) {
-    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
+    const auto left = ms_until(deadline);
     if (left.count() <= 0) break;
     auto line = port_.read_line(left);
     if (!line) break;
@@ -231,7 +231,7 @@ Result<GrblStatus> GrblTurntable::status() {
     const auto deadline = std::chrono::steady_clock::now() + opt_.reply_timeout;
     bool timed_out = false;
     while (!timed_out) {
-      const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
+      const auto left = ms_until(deadline);
       if (left.count() <= 0) break;
       auto line = port_.read_line(left);
       if (!line) {

@@ -41,6 +41,17 @@ Rig connect(const GrblFaults& f, GrblOptions o = fast()) {
   return r;
 }
 
+// The board homed, then a move to `deg` at `speed` deg/s under fault `f`,
+// which must fail: the rig and that move's status.
+std::pair<Rig, Status> failing_move(GrblFaults f, double speed, double deg) {
+  f.degrees_per_second = speed;
+  auto r = connect(f);
+  EXPECT_TRUE(r.table->home());
+  auto st = r.table->move_to(deg);
+  EXPECT_FALSE(st);
+  return {std::move(r), st};
+}
+
 TEST(GrblStatus, Parses) {
   auto s = parse_grbl_status("<Idle|MPos:15.000,0.000,0.000|FS:0,0>");
   ASSERT_TRUE(s);
@@ -214,10 +225,7 @@ TEST(GrblTurntable, WorkPositionUnderEveryStatusMask) {
 TEST(GrblTurntable, HardLimitHaltsUntilAResetThenAlarmNeedsUnlock) {
   GrblFaults f;
   f.hard_limit_at = 1;
-  f.degrees_per_second = 180;
-  auto r = connect(f);
-  ASSERT_TRUE(r.table->home());
-  auto st = r.table->move_to(90);
+  auto [r, st] = failing_move(f, 180, 90);
   ASSERT_FALSE(st);
   EXPECT_NE(st.error().message.find("alarm 1"), std::string::npos) << st.error().message;
   EXPECT_NE(st.error().message.find("hard limit"), std::string::npos) << st.error().message;
@@ -327,10 +335,7 @@ TEST(GrblTurntable, StartInAlarmNeedsUnlock) {
 TEST(GrblTurntable, ResetMidMoveIsReported) {
   GrblFaults f;
   f.reset_mid_move_at = 1;
-  f.degrees_per_second = 90;
-  auto r = connect(f);
-  ASSERT_TRUE(r.table->home());
-  auto st = r.table->move_to(90);
+  auto [r, st] = failing_move(f, 90, 90);
   ASSERT_FALSE(st);
   EXPECT_TRUE(st.error().message.find("reset") != std::string::npos ||
               st.error().message.find("alarm 3") != std::string::npos)

@@ -98,7 +98,7 @@ Result<std::string> SerialPort::read_line(std::chrono::milliseconds timeout) {
       if (tap_) tap_('<', *line);
       return std::move(*line);
     }
-    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
+    const auto left = ms_until(deadline);
     if (left.count() <= 0) return fail(ErrorCode::timeout, "'" + path_ + "': timed out waiting for a reply");
     pollfd pfd{fd_, POLLIN, 0};
     int r = ::poll(&pfd, 1, static_cast<int>(left.count()));

@@ -14,6 +14,11 @@
 
 namespace s2r {
 
+// Whole milliseconds left until a deadline on the steady clock (<= 0: passed).
+inline std::chrono::milliseconds ms_until(std::chrono::steady_clock::time_point deadline) {
+  return std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
+}
+
 // Splits a serial byte stream into lines. "\r\n", "\n" and a lone "\r" each
 // end a line; bytes that are not printable ASCII are dropped (line noise). A
 // line longer than `max_line` bytes is cut there and counted, so a device that
