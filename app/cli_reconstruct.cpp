@@ -71,6 +71,18 @@ void add_reconstruct(CLI::App& app, Chosen& chosen) {
   sub->add_flag_callback("--no-textures", [&job] { job.textures = false; },
                          "do not write the per-camera RGBA + depth textures (the cameras' depth is then cast only where "
                          "the facets' visibility needs it)");
+  sub->add_option("--fit", job.fit_seconds,
+                  "seconds to fit billboards to the training photos (opacity, footprint, offset and view-dependent "
+                  "colour per facet, by differentiable rasterization; writes splats.bin and fit.csv, the training "
+                  "error against seconds); 0: no fit")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  sub->add_option("--fit-sh", job.fit_sh_degree, "spherical-harmonic degree of the fitted colour (0: the same from every side)")
+      ->check(CLI::Range(0, 2))
+      ->capture_default_str();
+  sub->add_option("--fit-snapshots", job.fit_snapshots,
+                  "S,T,...: also write the fit as it was at these seconds (splats_<S>s.bin; s2r eval --splats)")
+      ->delimiter(',');
   sub->add_option("--threads", job.threads, "worker threads (0 = all cores)")->capture_default_str();
   sub->callback([a, &chosen] { chosen = a; });
 }

@@ -24,8 +24,8 @@ void add_preview(CLI::App& app, Chosen& chosen) {
 // DrawOptions: each default is the renderer's own.
 void add_draw_options(CLI::App* sub, DrawArgs& a) {
   DrawOptions& d = a.d;
-  sub->add_option("--geometry", a.geometry, "billboards | mesh (the octree's patch mesh, textured) | surface (the fused surface mesh, textured)")
-      ->check(CLI::IsMember({"billboards", "mesh", "surface"}))->capture_default_str();
+  sub->add_option("--geometry", a.geometry, "billboards | mesh (the octree's patch mesh, textured) | surface (the fused surface mesh, textured) | fitted (the billboards fitted to the photos, reconstruct --fit)")
+      ->check(CLI::IsMember({"billboards", "mesh", "surface", "fitted"}))->capture_default_str();
   sub->add_option("--cameras", d.selection.cameras, "k: input cameras blended per facet (1-4)")->check(CLI::Range(1, 4))->capture_default_str();
   sub->add_flag_callback("--no-clip", [&d] { d.depth_clip = false; }, "billboards without depth clipping (the paper's comparison)");
   sub->add_option("--pixel-error", d.pixel_error, "clip widens where a texel stays within this many pixels (0: fixed clip)")->capture_default_str();
@@ -99,13 +99,14 @@ void add_eval(CLI::App& app, Chosen& chosen) {
       "Render frames (held out at reconstruct, or input views) and compare with the photos: PSNR and SSIM\n"
       "over the object's pixels joined with every drawn pixel, for billboards and, in the same run, the\n"
       "baselines (billboards without depth clipping, the textured patch mesh and fused surface). Writes OUT/frame_NNNN.png\n"
-      "(photo | billboards | no clip | patch mesh | surface mesh), OUT/eval.csv and OUT/report.json.");
+      "(photo | fitted billboards, where the model has a fit | billboards | no clip | patch mesh | surface mesh), OUT/eval.csv and OUT/report.json.");
   auto a = std::make_shared<EvalArgs>();
   EvalJob& job = a->job;
   sub->add_option("model", job.model, "model folder (s2r reconstruct)")->required();
   sub->add_option("--holdout", a->holdout, "I,J,...: frames to render and compare")->required();
   sub->add_option("--out", a->out, "output folder (default MODEL/eval)");
-  sub->add_flag_callback("--no-baselines", [&job] { job.baselines = false; }, "billboards only");
+  sub->add_flag_callback("--no-baselines", [&job] { job.baselines = false; }, "billboards (and fitted billboards) only");
+  sub->add_option("--splats", job.splats, "draw this snapshot of the fit as 'fitted' (splats_<S>s.bin, reconstruct --fit-snapshots)");
   sub->add_option("--background", a->background, "white, black or R,G,B (0-255 levels); default: the session's own background, else the backdrop's colour, else black");
   add_draw_options(sub, a->draw);
   add_source_options(sub, job.source);

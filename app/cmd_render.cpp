@@ -47,6 +47,7 @@ Result<DrawOptions> draw_options(const DrawArgs& a) {
   DrawOptions d = a.d;
   d.geometry = a.geometry == "mesh"      ? DrawOptions::Geometry::kMesh
                : a.geometry == "surface" ? DrawOptions::Geometry::kSurface
+               : a.geometry == "fitted"  ? DrawOptions::Geometry::kSplats
                                          : DrawOptions::Geometry::kBillboards;
   if (a.gaze.empty()) return d;
   d.lod.field = true;

@@ -866,6 +866,21 @@ std::vector<SurfaceCrossing> SparseVolume::crossings(double max_jump_voxels) con
   return out;
 }
 
+std::vector<Eigen::Vector3f> SparseVolume::fit_candidates(double band_m) const {
+  const Impl& m = *impl_;
+  std::vector<Eigen::Vector3f> out;
+  if (m.hull)
+    for (auto it = m.hull->cbeginValueOn(); it; ++it) out.push_back(m.centre(it.getCoord()).cast<float>());
+  if (!m.hull || !m.hull_only)
+    for (auto it = m.tsdf->cbeginValueOn(); it; ++it) {
+      const openvdb::Vec3s v = *it;
+      if (v[1] <= 0 || std::abs(v[0]) > band_m) continue;
+      if (m.hull && m.hull->tree().isValueOn(it.getCoord())) continue;  // taken with the hull
+      out.push_back(m.centre(it.getCoord()).cast<float>());
+    }
+  return out;
+}
+
 size_t SparseVolume::active_voxels() const {
   size_t n = impl_->tsdf->activeVoxelCount();
   if (impl_->hull) n += impl_->hull->activeVoxelCount();

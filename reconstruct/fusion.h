@@ -121,6 +121,11 @@ class SparseVolume {
   // `evidence`: what evidence() returned (its depth voxels bound the mesher).
   Mesh surface_mesh(const std::vector<EvidenceVoxel>& evidence) const;
 
+  // Where fitted facets may start (reconstruct/splat_fit.h): every voxel of
+  // the visual hull, and depth-observed voxels within `band_m` of the fused
+  // surface; voxel centres, world metres.
+  std::vector<Eigen::Vector3f> fit_candidates(double band_m) const;
+
   size_t active_voxels() const;   // all grids
   size_t memory_bytes() const;    // all grids
 

@@ -6,6 +6,7 @@
 //   MODEL/facet_cameras.bin uint32[]: camera indices, FacetRecord ranges into it
 //   MODEL/octree.bin        OctreeRecord[] (optional): the surface octree, breadth first
 //   MODEL/cameras/NNNN.exr  per-camera RGBA + distance textures
+//   MODEL/splats.bin        float[] (optional): the fitted billboards, SplatLayout each
 //
 // Every payload starts with a 24-byte header: magic "S2RB", payload version,
 // record size, record count; and ends with the CRC-32 of everything before.
@@ -55,6 +56,16 @@ struct OctreeRecord {
 static_assert(sizeof(OctreeRecord) == 52, "OctreeRecord is an on-disk layout");
 inline constexpr uint32_t kNoChild = 0xffffffffu;
 
+// The fitted billboards (reconstruct/splat_fit.h) as stored: per facet
+// centre x y z (metres), footprint sigma (metres), opacity (0..1), then the
+// colour's spherical-harmonic coefficients, coefficient-major (k * 3 + c),
+// (degree + 1)^2 of them per channel.
+struct SplatLayout {
+  int sh_degree = 0;
+  int coeffs() const { return (sh_degree + 1) * (sh_degree + 1); }
+  int stride() const { return 5 + 3 * coeffs(); }  // floats per facet
+};
+
 struct ModelCamera {
   Intrinsics intrinsics;
   Eigen::Isometry3d world_from_camera = Eigen::Isometry3d::Identity();
@@ -77,9 +88,16 @@ struct Model {
   std::optional<std::string> patch_mesh;  // relative PLY path
   std::optional<std::string> surface_mesh;  // relative PLY path: the fused surface
   std::optional<std::string> environment;  // relative path
+  SplatLayout splat_layout;
+  std::vector<float> splats;  // fitted billboards, splat_layout.stride() floats each; empty when not fitted
+  size_t splat_count() const { return splats.size() / size_t(splat_layout.stride()); }
 };
 
 Result<Model> load_model(const std::filesystem::path& dir);
+// A splats.bin payload alone (a snapshot of a fit), in the model's format;
+// load checks it holds whole facets of `layout` with valid values.
+Status save_splat_payload(const std::filesystem::path& file, const std::vector<float>& splats);
+Result<std::vector<float>> load_splat_payload(const std::filesystem::path& file, const SplatLayout& layout);
 Status save_model(const std::filesystem::path& dir, const Model& model);
 
 }  // namespace s2r

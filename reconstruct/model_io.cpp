@@ -68,7 +68,38 @@ Result<std::vector<T>> unpack(const fs::path& path, uint64_t expected_count) {
   return out;
 }
 
+Status check_splats(const fs::path& file, const std::vector<float>& splats, const SplatLayout& layout) {
+  const size_t stride = size_t(layout.stride());
+  if (splats.size() % stride)
+    return fail(file.string() + ": " + std::to_string(splats.size()) + " floats are not whole facets of " + std::to_string(stride));
+  for (size_t i = 0; i < splats.size() / stride; ++i) {
+    const float* r = &splats[i * stride];
+    const std::string at = file.string() + ": facet " + std::to_string(i) + ": ";
+    for (size_t k = 0; k < stride; ++k)
+      if (!std::isfinite(r[k])) return fail(at + "non-finite value");
+    if (!(r[3] > 0)) return fail(at + "sigma must be > 0");
+    if (!(r[4] >= 0 && r[4] <= 1)) return fail(at + "opacity outside [0, 1]");
+  }
+  return {};
+}
+
 }  // namespace
+
+Status save_splat_payload(const fs::path& file, const std::vector<float>& splats) {
+  return write_file_atomic(file, pack(splats));
+}
+
+Result<std::vector<float>> load_splat_payload(const fs::path& file, const SplatLayout& layout) {
+  auto bytes = read_file(file);
+  if (!bytes) return std::unexpected(bytes.error());
+  if (bytes->size() < kHeader + kFooter) return fail(file.string() + ": truncated");
+  uint64_t count;
+  std::memcpy(&count, bytes->data() + 16, 8);
+  auto splats = unpack<float>(file, count);
+  if (!splats) return std::unexpected(splats.error());
+  if (auto st = check_splats(file, *splats, layout); !st) return std::unexpected(st.error());
+  return splats;
+}
 
 Status save_model(const fs::path& dir, const Model& m) {
   json cams = json::array();
@@ -87,6 +118,10 @@ Status save_model(const fs::path& dir, const Model& m) {
     doc["payloads"]["octree"] = {{"file", "octree.bin"}, {"records", m.octree.size()}};
     doc["octree_max_level"] = m.octree_max_level;
   }
+  if (!m.splats.empty()) {
+    doc["payloads"]["splats"] = {{"file", "splats.bin"}, {"records", m.splats.size()}};
+    doc["splat_sh_degree"] = m.splat_layout.sh_degree;
+  }
   if (!m.session.empty()) doc["session"] = m.session;
   if (m.patch_mesh) doc["patch_mesh"] = *m.patch_mesh;
   if (m.surface_mesh) doc["surface_mesh"] = *m.surface_mesh;
@@ -99,7 +134,8 @@ Status save_model(const fs::path& dir, const Model& m) {
     return m.octree.empty() ? Status{} : write_file_atomic(dir / "octree.bin", pack(m.octree));
   });
   const Status cameras = write_file_atomic(dir / "facet_cameras.bin", pack(m.facet_cameras));
-  const Status written[] = {facets.get(), cameras, octree.get()};
+  const Status splats = m.splats.empty() ? Status{} : write_file_atomic(dir / "splats.bin", pack(m.splats));
+  const Status written[] = {facets.get(), cameras, splats, octree.get()};
   for (const Status& st : written)
     if (!st) return st;
   return write_file_atomic(dir / "model.json", dump_json(doc));
@@ -164,6 +200,16 @@ Result<Model> load_model(const fs::path& dir) {
       if (!oct) return std::unexpected(oct.error());
       m.octree = std::move(*oct);
     }
+    if (pay.has("splats")) {
+      const uint64_t ns = static_cast<uint64_t>(pay.at("splats").integer("records"));
+      m.splat_layout.sh_degree = static_cast<int>(doc.integer("splat_sh_degree"));
+      if (m.splat_layout.sh_degree < 0 || m.splat_layout.sh_degree > 2) doc.error("splat_sh_degree", "must be 0, 1 or 2");
+      if (ns % uint64_t(m.splat_layout.stride()) != 0)
+        pay.at("splats").error("records", "not a whole number of facets of " + std::to_string(m.splat_layout.stride()) + " floats");
+      auto sp = unpack<float>(dir / "splats.bin", ns);
+      if (!sp) return std::unexpected(sp.error());
+      m.splats = std::move(*sp);
+    }
   } catch (const FormatError& e) {
     return fail(e.what());
   }
@@ -183,6 +229,7 @@ Result<Model> load_model(const fs::path& dir) {
     if (m.facet_cameras[i] >= m.cameras.size())
       return fail((dir / "facet_cameras.bin").string() + ": entry " + std::to_string(i) + " names camera " +
                   std::to_string(m.facet_cameras[i]) + " of " + std::to_string(m.cameras.size()));
+  if (auto st = check_splats(dir / "splats.bin", m.splats, m.splat_layout); !st) return std::unexpected(st.error());
   const std::string ob = (dir / "octree.bin").string();
   for (size_t i = 0; i < m.octree.size(); ++i) {
     const auto& n = m.octree[i];

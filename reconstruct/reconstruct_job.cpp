@@ -18,6 +18,7 @@
 #include "core/image_io.h"
 #include "core/parallel.h"
 #include "core/progress.h"
+#include "core/sweep.h"
 #include "reconstruct/camera_depth.h"
 #include "reconstruct/frame_inputs.h"
 #include "reconstruct/fusion.h"
@@ -642,12 +643,114 @@ Result<ReconstructTruth> check_against_truth(const ReconstructJob& job, const Se
 
 }  // namespace
 
+// The fit's background: the session's, else the median of the photos'
+// border colours in object-centre sessions (as eval's), else black.
+std::array<float, 3> fit_background(const Session& s, const std::vector<View>& views) {
+  if (s.background) return *s.background;
+  std::array<float, 3> bg{0, 0, 0};
+  if (s.layout != Layout::kObjectCentre) return bg;
+  std::array<std::vector<double>, 3> c;
+  for (const View& v : views) {
+    const Backdrop b = border_backdrop(v.color);
+    for (size_t k = 0; k < 3 && !b.color.empty(); ++k) c[k].push_back(b.color[std::min(k, b.color.size() - 1)] / 255.0);
+  }
+  for (size_t k = 0; k < 3; ++k) bg[k] = c[k].empty() ? 0.f : float(median(c[k]));
+  return bg;
+}
+
+// Fitted billboards: the candidates from the volume, fitted to the training
+// photos (only the views the model is built from), written as splats.bin
+// with the fit's error against seconds as fit.csv.
+Status fit_step(const ReconstructJob& job, const Session& s, const std::vector<View>& views, const SparseVolume& volume,
+                double w0, Model& model, ReconstructSummary& sum) {
+  Report& rep = sum.report;
+  const auto anchors = volume.fit_candidates(2 * w0);
+  if (anchors.empty()) {
+    rep.warnings.push_back("fit: no voxel to start from (no hull and no fused surface): no fitted billboards");
+    return {};
+  }
+  std::vector<ImageU8> rgb(views.size());
+  std::vector<SplatView> sv;
+  for (size_t i = 0; i < views.size(); ++i) {
+    const ImageU8& c = views[i].color;
+    if (c.channels == 3) {
+      sv.push_back({views[i].K, views[i].world_from_camera, &c});
+      continue;
+    }
+    rgb[i] = ImageU8(c.width, c.height, 3);
+    for (size_t p = 0; p < c.pixels(); ++p)
+      for (size_t k = 0; k < 3; ++k) rgb[i].data[p * 3 + k] = c.data[p * size_t(c.channels) + std::min<size_t>(k, size_t(c.channels) - 1)];
+    sv.push_back({views[i].K, views[i].world_from_camera, &rgb[i]});
+  }
+  SplatFitOptions o;
+  o.seconds = job.fit_seconds;
+  o.sh_degree = job.fit_sh_degree;
+  o.threads = job.threads;
+  o.background = fit_background(s, views);
+  o.seconds_marks = job.fit_snapshots;
+  Progress bar("fit", 1000);
+  size_t shown = 0;
+  o.on_progress = [&](double f) {
+    const size_t at = size_t(f * 1000);
+    if (at > shown) bar.tick(at - shown), shown = at;
+  };
+  auto splats = init_splats(anchors, float(w0), sv, o);
+  auto fit = fit_splats(splats, sv, o);
+  bar.done();
+  if (!fit) return std::unexpected(fit.error());
+  const SplatLayout layout{job.fit_sh_degree};
+  auto records = [&](const std::vector<Splat>& in) {
+    std::vector<float> out;
+    out.reserve(in.size() * size_t(layout.stride()));
+    for (const Splat& p : in) {
+      const Eigen::Vector3f c = p.centre();
+      out.insert(out.end(), {c.x(), c.y(), c.z(), p.sigma(), p.opacity()});
+      for (int k = 0; k < 3 * layout.coeffs(); ++k) out.push_back(p.sh[size_t(k)]);
+    }
+    return out;
+  };
+  model.splat_layout = layout;
+  model.splats = records(splats);
+  SweepTable curve;
+  curve.columns = {"seconds", "epoch", "scale", "train_psnr_db", "facets"};
+  for (const auto& p : fit->curve) curve.rows.push_back({p.seconds, double(p.epoch), double(p.scale), p.train_psnr_db, double(p.splats)});
+  if (auto st = curve.write_csv(job.out / "fit.csv"); !st) return st;
+  for (const auto& [at, snap] : fit->snapshots) {
+    Model m = model;
+    m.splats = records(snap);
+    const std::string name = fmt::format("splats_{:.0f}s.bin", at);
+    if (auto st = save_splat_payload(job.out / name, m.splats); !st) return st;
+  }
+  fit->snapshots.clear();
+  rep.counts["fit_candidates"] = double(fit->initial);
+  rep.counts["fit_refined_from"] = double(fit->refined_from);
+  rep.counts["fit_split"] = double(fit->split);
+  rep.counts["fit_facets"] = double(fit->final_count);
+  rep.counts["fit_epochs"] = double(fit->epochs);
+  rep.counts["fit_steps"] = double(fit->steps);
+  rep.counts["fit_seconds"] = fit->seconds;
+  rep.counts["fit_seconds_initial_error"] = fit->seconds_initial;
+  rep.counts["fit_seconds_project"] = fit->seconds_project;
+  rep.counts["fit_seconds_raster"] = fit->seconds_raster;
+  rep.counts["fit_seconds_update"] = fit->seconds_update;
+  rep.counts["fit_bytes"] = double(model.splats.size() * 4);
+  rep.skipped["fit_facets_pruned"] = double(fit->pruned);
+  rep.errors["fit_initial_psnr_db"] = fit->initial_psnr_db;
+  rep.errors["fit_train_psnr_db"] = fit->train_psnr_db;
+  rep.params["fit_background"] = fmt::format("{:.3g},{:.3g},{:.3g}", o.background[0], o.background[1], o.background[2]);
+  rep.params["fit_sh_degree"] = double(job.fit_sh_degree);
+  sum.fit = std::move(*fit);
+  return {};
+}
+
 Status ReconstructJob::validate() const {
   if (!(target_error_px > 0)) return fail(ErrorCode::invalid, "target_error_px: must be > 0 pixels");
   if (!(truncation_voxels >= 1)) return fail(ErrorCode::invalid, "truncation_voxels: must be at least 1 voxel");
   if (voxel_m && !(*voxel_m > 0 && std::isfinite(*voxel_m)))
     return fail(ErrorCode::invalid, "voxel_m: must be 'auto' or a positive number of metres");
   if (threads < 0) return fail(ErrorCode::invalid, "threads: must be >= 0 (0 = all cores)");
+  if (!(fit_seconds >= 0) || !std::isfinite(fit_seconds)) return fail(ErrorCode::invalid, "fit_seconds: must be >= 0 seconds");
+  if (fit_sh_degree < 0 || fit_sh_degree > 2) return fail(ErrorCode::invalid, "fit_sh_degree: must be 0, 1 or 2");
   return {};
 }
 
@@ -739,6 +842,11 @@ Result<ReconstructSummary> run_reconstruct_job(const ReconstructJob& job) {
   sum.facets = build_model_facets(job, *views, evidence, distance, depth, w0, model, rep);
   sum.camera_depth_triangles_drawn = depth.triangles_drawn();
   timer.lap("facets");
+
+  if (job.fit_seconds > 0) {
+    if (auto st = fit_step(job, in->s, *views, volume, w0, model, sum); !st) return std::unexpected(st.error());
+    timer.lap("fit");
+  }
 
   model.bounds = facet_bounds(model.facets, extent->centre);
   Result<OctreePart> part = octree_part.get();

@@ -17,6 +17,7 @@
 #include "core/result.h"
 #include "reconstruct/microfacets.h"
 #include "reconstruct/rig_eval.h"
+#include "reconstruct/splat_fit.h"
 
 namespace s2r {
 
@@ -53,6 +54,12 @@ struct ReconstructJob {
   double truncation_voxels = 4;       // tau in voxels
   bool per_region = true;             // unreliable / fuzzy regions get 2x larger facets
   bool textures = true;               // write cameras/NNNN.exr
+  // > 0: fit billboards to the photos for this many seconds (splats.bin;
+  // reconstruct/splat_fit.h), starting from the hull's voxels and the
+  // fused surface's band; 0: no fit.
+  double fit_seconds = 0;
+  int fit_sh_degree = 1;              // view-dependent colour: 0 (none) .. 2
+  std::vector<double> fit_snapshots;  // seconds: also write splats_<s>s.bin at these (error against run time)
   int threads = 0;
 
   // The options' own ranges, an error naming the field ("target_error_px:
@@ -80,6 +87,7 @@ struct ReconstructSummary {
   size_t camera_depth_pixels_outside_matte = 0;  // cameras' distances cut where their view's matte is 0
   double seconds = 0, seconds_fusion = 0;  // the build (the truth check not counted), fusion alone
   std::optional<ReconstructTruth> truth;   // sessions with ground truth only
+  std::optional<SplatFitSummary> fit;      // with fit_seconds > 0 (snapshots not kept)
   Report report;
 
   const Report& to_report() const { return report; }

@@ -7,17 +7,18 @@
 
 namespace s2r {
 
-Result<Framebuffer> Framebuffer::create(int width, int height) {
+Result<Framebuffer> Framebuffer::create(int width, int height, bool half_float) {
   if (width <= 0 || height <= 0 || width > 16384 || height > 16384)
     return fail("framebuffer size " + std::to_string(width) + "x" + std::to_string(height) + " is out of range");
   Framebuffer f;
   f.width_ = width;
   f.height_ = height;
+  f.half_float_ = half_float;
   glGenFramebuffers(1, &f.fbo_);
   glGenRenderbuffers(1, &f.color_);
   glGenRenderbuffers(1, &f.depth_);
   glBindRenderbuffer(GL_RENDERBUFFER, f.color_);
-  glRenderbufferStorage(GL_RENDERBUFFER, GL_RGBA8, width, height);
+  glRenderbufferStorage(GL_RENDERBUFFER, half_float ? GL_RGBA16F : GL_RGBA8, width, height);
   glBindRenderbuffer(GL_RENDERBUFFER, f.depth_);
   glRenderbufferStorage(GL_RENDERBUFFER, GL_DEPTH_COMPONENT24, width, height);
   glBindFramebuffer(GL_FRAMEBUFFER, f.fbo_);
@@ -36,6 +37,7 @@ Framebuffer& Framebuffer::operator=(Framebuffer&& o) noexcept {
   std::swap(depth_, o.depth_);
   std::swap(width_, o.width_);
   std::swap(height_, o.height_);
+  std::swap(half_float_, o.half_float_);
   return *this;
 }
 
@@ -77,6 +79,13 @@ void Framebuffer::blit_to_screen(int w, int h) const {
   glBindFramebuffer(GL_DRAW_FRAMEBUFFER, 0);
   glBlitFramebuffer(0, 0, width_, height_, 0, 0, w, h, GL_COLOR_BUFFER_BIT, GL_NEAREST);
   glBindFramebuffer(GL_FRAMEBUFFER, 0);
+}
+
+void Framebuffer::blit_to(const Framebuffer& other) const {
+  glBindFramebuffer(GL_READ_FRAMEBUFFER, fbo_);
+  glBindFramebuffer(GL_DRAW_FRAMEBUFFER, other.fbo_);
+  glBlitFramebuffer(0, 0, width_, height_, 0, 0, other.width_, other.height_, GL_COLOR_BUFFER_BIT, GL_NEAREST);
+  glBindFramebuffer(GL_FRAMEBUFFER, other.fbo_);
 }
 
 }  // namespace s2r

@@ -137,11 +137,18 @@ struct Renderer {
   std::unique_ptr<ModelRenderer> renderer;
 };
 
-Result<Renderer> open_model(const fs::path& dir) {
+// `splats`: a snapshot of the fit (splats_<S>s.bin) drawn instead of the model's.
+Result<Renderer> open_model(const fs::path& dir, const fs::path& splats = {}) {
   Renderer r;
   auto model = load_model(dir);
   if (!model) return std::unexpected(model.error());
   r.model = std::move(*model);
+  if (!splats.empty()) {
+    if (r.model.splats.empty()) return fail(dir.string() + ": the model has no fit, so no layout for " + splats.string());
+    auto sp = load_splat_payload(splats, r.model.splat_layout);
+    if (!sp) return std::unexpected(sp.error());
+    r.model.splats = std::move(*sp);
+  }
   auto ctx = create_headless_context();
   if (!ctx) return std::unexpected(ctx.error());
   r.context = std::move(*ctx);
@@ -194,7 +201,7 @@ Result<RenderSummary> run_render_job(const RenderJob& job) {
   add_selection(rep, *st, "");
   rep.counts["triangles"] = double(st->triangles);
   rep.counts["texture_mib"] = double(r->renderer->texture_bytes()) / (1 << 20);
-  rep.params["geometry"] = std::string(job.draw.geometry == DrawOptions::Geometry::kMesh ? "mesh" : "billboards");
+  rep.params["geometry"] = std::string(geometry_name(job.draw.geometry));
   rep.params["depth_clip"] = job.draw.depth_clip;
   rep.params["cameras"] = double(job.draw.selection.cameras);
   rep.params["width"] = double(v.K.width);
@@ -217,8 +224,14 @@ struct EvalMethod {
 };
 
 std::vector<EvalMethod> eval_methods(const EvalJob& job, const ModelRenderer& renderer) {
-  std::vector<EvalMethod> methods{{"billboards", job.draw}};
-  methods[0].draw.mesh_reliability = 0;
+  std::vector<EvalMethod> methods;
+  if (renderer.has_splats()) {
+    EvalMethod fitted{"fitted", job.draw};
+    fitted.draw.geometry = DrawOptions::Geometry::kSplats;
+    methods.push_back(fitted);
+  }
+  methods.push_back({"billboards", job.draw});
+  methods.back().draw.mesh_reliability = 0;
   if (job.draw.mesh_reliability > 0 && renderer.has_mesh()) methods.push_back({"hybrid", job.draw});
   if (job.baselines) {
     EvalMethod noclip{"no_clip", job.draw};
@@ -388,6 +401,8 @@ void eval_summary(const EvalJob& job, const std::vector<EvalMethod>& methods, Ev
     rep.params["mesh_reliability"] = job.draw.mesh_reliability;
   }
   if (auto g = sum.gain_db("billboards", "no_clip")) rep.errors["depth_clip_gain_db"] = *g;
+  for (const std::string n : {"billboards", "mesh"})
+    if (auto g = sum.gain_db("fitted", n)) rep.errors["fitted_over_" + n + "_db"] = *g;
   for (const std::string n : {"mesh", "surface"}) {
     if (auto g = sum.gain_db("billboards", n)) rep.errors["billboards_over_" + n + "_db"] = *g;
     if (auto g = sum.gain_db("billboards", n, true)) rep.errors["billboards_over_" + n + "_held_out_db"] = *g;
@@ -414,8 +429,8 @@ Status EvalJob::validate() const {
   if (frames.empty()) return fail(ErrorCode::invalid, "frames: give the frames to evaluate");
   if (source.session.empty()) return fail(ErrorCode::invalid, "session: is needed, the photos come from it");
   for (const auto& m : only)
-    if (m != "billboards" && m != "hybrid" && m != "no_clip" && m != "mesh" && m != "surface")
-      return fail(ErrorCode::invalid, "only: '" + m + "' is not a method (billboards, hybrid, no_clip, mesh, surface)");
+    if (m != "fitted" && m != "billboards" && m != "hybrid" && m != "no_clip" && m != "mesh" && m != "surface")
+      return fail(ErrorCode::invalid, "only: '" + m + "' is not a method (fitted, billboards, hybrid, no_clip, mesh, surface)");
   if (background)
     for (float c : *background)
       if (!(c >= 0 && c <= 1)) return fail(ErrorCode::invalid, "background: each channel must be in [0, 1]");
@@ -427,7 +442,7 @@ Status EvalJob::validate() const {
 Result<EvalSummary> run_eval_job(const EvalJob& job) {
   Stopwatch clock;
   if (auto st = job.validate(); !st) return std::unexpected(st.error());
-  auto r = open_model(job.model);
+  auto r = open_model(job.model, job.splats);
   if (!r) return std::unexpected(r.error());
   auto cameras = SessionCameras::load(job.source);
   if (!cameras) return std::unexpected(cameras.error());

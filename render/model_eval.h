@@ -98,8 +98,9 @@ struct EvalJob {
   std::filesystem::path out;  // folder: per-view strips, eval.csv, report.json
   DrawOptions draw;
   bool baselines = true;      // billboards without clipping and the mesh, in the same run
-  // The methods to draw (billboards, hybrid, no_clip, mesh, surface); empty: all of the above that apply.
+  // The methods to draw (fitted, billboards, hybrid, no_clip, mesh, surface); empty: all of the above that apply.
   std::set<std::string> only;
+  std::filesystem::path splats;  // a snapshot of the fit (splats_<S>s.bin) drawn as "fitted" instead of the model's
   // RGB in [0, 1]; empty: the session's background, else the backdrop's colour, else black.
   std::optional<std::array<float, 3>> background;
 

@@ -269,6 +269,68 @@ void main() {
 }
 )";
 
+// Fitted billboards (reconstruct/splat_fit.h): the image formation the fit
+// used, drawn back to front into a half-float target. Each facet is a
+// screen-aligned square of 3 sigma around its centre's projection (through
+// the lens model, as to_clip), its alpha min(0.99, o g) with g the Gaussian
+// of the pixel's distance, premultiplied and blended "over".
+const char* kSplatVertex = R"(
+layout(std430, binding = 2) readonly buffer Splats { float sp[]; };
+layout(location = 0) in uint a_splat;
+uniform int u_stride;
+uniform int u_coeffs;
+uniform vec3 u_eye;
+flat out vec2 v_centre;
+flat out float v_sigma;
+flat out float v_opacity;
+flat out vec3 v_color;
+void main() {
+  int b = int(a_splat) * u_stride;
+  vec3 c = vec3(sp[b], sp[b + 1], sp[b + 2]);
+  vec3 p = (u_view_cfw * vec4(c, 1.0)).xyz;
+  v_sigma = sp[b + 3] * u_view_k.x / max(p.z, 1e-6);
+  v_opacity = sp[b + 4];
+  if (p.z <= u_near_far.x) { gl_Position = vec4(2.0, 2.0, 2.0, 1.0); return; }
+  vec4 clip = to_clip(c);
+  vec2 ndc = clip.xy / clip.w;
+  v_centre = vec2(((ndc.x + 1.0) * u_view_size.x - 1.0) * 0.5, ((1.0 - ndc.y) * u_view_size.y - 1.0) * 0.5);
+  float r = 3.0 * v_sigma + 1.0;
+  vec2 corner = vec2(float(gl_VertexID & 1), float(gl_VertexID >> 1)) * 2.0 - 1.0;
+  gl_Position = vec4(ndc + corner * (2.0 * r) / u_view_size, 0.0, 1.0);
+  vec3 d = normalize(c - u_eye);
+  float basis[9];
+  basis[0] = 0.28209479177387814;
+  basis[1] = -0.4886025119029199 * d.y;
+  basis[2] = 0.4886025119029199 * d.z;
+  basis[3] = -0.4886025119029199 * d.x;
+  basis[4] = 1.0925484305920792 * d.x * d.y;
+  basis[5] = -1.0925484305920792 * d.y * d.z;
+  basis[6] = 0.31539156525252005 * (2.0 * d.z * d.z - d.x * d.x - d.y * d.y);
+  basis[7] = -1.0925484305920792 * d.x * d.z;
+  basis[8] = 0.5462742152960396 * (d.x * d.x - d.y * d.y);
+  vec3 col = vec3(0.5);
+  for (int k = 0; k < u_coeffs; ++k) col += basis[k] * vec3(sp[b + 5 + 3 * k], sp[b + 6 + 3 * k], sp[b + 7 + 3 * k]);
+  v_color = max(col, vec3(0.0));
+}
+)";
+
+const char* kSplatFragment = R"(
+flat in vec2 v_centre;
+flat in float v_sigma;
+flat in float v_opacity;
+flat in vec3 v_color;
+uniform vec2 u_size;
+out vec4 frag;
+void main() {
+  vec2 d = vec2(gl_FragCoord.x - 0.5, u_size.y - gl_FragCoord.y - 0.5) - v_centre;
+  float d2 = dot(d, d);
+  if (d2 > 9.0 * v_sigma * v_sigma) discard;
+  float a = min(0.99, v_opacity * exp(-0.5 * d2 / (v_sigma * v_sigma)));
+  if (a < 1.0 / 255.0) discard;
+  frag = vec4(v_color * a, a);
+}
+)";
+
 std::string shader(std::initializer_list<const char*> parts) {
   std::string s = "#version 430 core\n";
   for (const char* p : parts) s += p;
@@ -418,7 +480,7 @@ std::vector<float> triangle_reliability(const Mesh& mesh, const Model& model) {
 }  // namespace
 
 struct ModelRenderer::Programs {
-  GlProgram billboard, mesh;
+  GlProgram billboard, mesh, splat;
 };
 
 Result<std::unique_ptr<ModelRenderer>> ModelRenderer::create(const Model& model, const std::filesystem::path& dir,
@@ -433,7 +495,22 @@ Result<std::unique_ptr<ModelRenderer>> ModelRenderer::create(const Model& model,
   if (!bb) return std::unexpected(bb.error());
   auto me = GlProgram::build(shader({kCommon, kViewUniforms, kMeshVertex}), shader({kCommon, kTexel, kMeshFragment}));
   if (!me) return std::unexpected(me.error());
-  r->programs_.reset(new Programs{std::move(*bb), std::move(*me)});
+  auto sp = GlProgram::build(shader({kCommon, kViewUniforms, kSplatVertex}), shader({kSplatFragment}));
+  if (!sp) return std::unexpected(sp.error());
+  r->programs_.reset(new Programs{std::move(*bb), std::move(*me), std::move(*sp)});
+  if (!model.splats.empty()) {
+    glGenBuffers(1, &r->splat_ssbo_);
+    glBindBuffer(GL_SHADER_STORAGE_BUFFER, r->splat_ssbo_);
+    glBufferData(GL_SHADER_STORAGE_BUFFER, GLsizeiptr(model.splats.size() * sizeof(float)), model.splats.data(), GL_STATIC_DRAW);
+    glGenVertexArrays(1, &r->splat_vao_);
+    glBindVertexArray(r->splat_vao_);
+    glGenBuffers(1, &r->splat_order_vbo_);
+    glBindBuffer(GL_ARRAY_BUFFER, r->splat_order_vbo_);
+    glEnableVertexAttribArray(0);
+    glVertexAttribIPointer(0, 1, GL_UNSIGNED_INT, sizeof(uint32_t), nullptr);
+    glVertexAttribDivisor(0, 1);
+    glBindVertexArray(0);
+  }
 
   // Camera textures, read in parallel, into two texture arrays sized to the
   // largest camera (each layer holds its image in the top-left corner).
@@ -460,37 +537,40 @@ Result<std::unique_ptr<ModelRenderer>> ModelRenderer::create(const Model& model,
     r->texture_width_ = std::max(r->texture_width_, tex[i].rgba.width);
     r->texture_height_ = std::max(r->texture_height_, tex[i].rgba.height);
   }
-  if (layers == 0) return fail("the model has no camera textures (reconstructed without textures?): nothing to texture facets with");
-  GLint max_layers = 0;
-  glGetIntegerv(GL_MAX_ARRAY_TEXTURE_LAYERS, &max_layers);
-  if (layers > max_layers) return fail(fmt::format("{} camera textures, the OpenGL driver allows {} layers", layers, max_layers));
-  const int W = r->texture_width_, H = r->texture_height_;
-  glGenTextures(1, &r->color_array_);
-  glBindTexture(GL_TEXTURE_2D_ARRAY, r->color_array_);
-  glTexStorage3D(GL_TEXTURE_2D_ARRAY, 1, GL_RGBA8, W, H, layers);
-  glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
-  glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
-  glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
-  glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
-  glGenTextures(1, &r->distance_array_);
-  glBindTexture(GL_TEXTURE_2D_ARRAY, r->distance_array_);
-  glTexStorage3D(GL_TEXTURE_2D_ARRAY, 1, GL_R32F, W, H, layers);
-  glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
-  glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
-  glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
-  for (size_t i = 0; i < n; ++i) {
-    if (layer[i] < 0) continue;
-    const auto& t = tex[i];
-    if (t.rgba.channels != 4 || !(t.distance.width == t.rgba.width && t.distance.height == t.rgba.height))
-      return fail(model.cameras[i].texture + ": colour and distance channels differ in size");
+  if (layers == 0 && model.splats.empty())
+    return fail("the model has no camera textures (reconstructed without textures?): nothing to texture facets with");
+  if (layers > 0) {
+    GLint max_layers = 0;
+    glGetIntegerv(GL_MAX_ARRAY_TEXTURE_LAYERS, &max_layers);
+    if (layers > max_layers) return fail(fmt::format("{} camera textures, the OpenGL driver allows {} layers", layers, max_layers));
+    const int W = r->texture_width_, H = r->texture_height_;
+    glGenTextures(1, &r->color_array_);
     glBindTexture(GL_TEXTURE_2D_ARRAY, r->color_array_);
-    glTexSubImage3D(GL_TEXTURE_2D_ARRAY, 0, 0, 0, layer[i], t.rgba.width, t.rgba.height, 1, GL_RGBA, GL_UNSIGNED_BYTE,
-                    t.rgba.data.data());
+    glTexStorage3D(GL_TEXTURE_2D_ARRAY, 1, GL_RGBA8, W, H, layers);
+    glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+    glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+    glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+    glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+    glGenTextures(1, &r->distance_array_);
     glBindTexture(GL_TEXTURE_2D_ARRAY, r->distance_array_);
-    glTexSubImage3D(GL_TEXTURE_2D_ARRAY, 0, 0, 0, layer[i], t.rgba.width, t.rgba.height, 1, GL_RED, GL_FLOAT,
-                    t.distance.data.data());
+    glTexStorage3D(GL_TEXTURE_2D_ARRAY, 1, GL_R32F, W, H, layers);
+    glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
+    glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+    glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
+    for (size_t i = 0; i < n; ++i) {
+      if (layer[i] < 0) continue;
+      const auto& t = tex[i];
+      if (t.rgba.channels != 4 || !(t.distance.width == t.rgba.width && t.distance.height == t.rgba.height))
+        return fail(model.cameras[i].texture + ": colour and distance channels differ in size");
+      glBindTexture(GL_TEXTURE_2D_ARRAY, r->color_array_);
+      glTexSubImage3D(GL_TEXTURE_2D_ARRAY, 0, 0, 0, layer[i], t.rgba.width, t.rgba.height, 1, GL_RGBA, GL_UNSIGNED_BYTE,
+                      t.rgba.data.data());
+      glBindTexture(GL_TEXTURE_2D_ARRAY, r->distance_array_);
+      glTexSubImage3D(GL_TEXTURE_2D_ARRAY, 0, 0, 0, layer[i], t.rgba.width, t.rgba.height, 1, GL_RED, GL_FLOAT,
+                      t.distance.data.data());
+    }
   }
-  r->texture_bytes_ = size_t(W) * H * layers * 8;
+  r->texture_bytes_ = size_t(r->texture_width_) * r->texture_height_ * layers * 8;
   r->hierarchy_ = FacetHierarchy::build(model, facet_luminance(model, tex));
 
   // Cameras: 32 floats each (the GLSL Cam struct, std430).
@@ -580,11 +660,12 @@ Result<std::unique_ptr<ModelRenderer>> ModelRenderer::create(const Model& model,
 }
 
 ModelRenderer::~ModelRenderer() {
-  const unsigned buffers[] = {facet_ssbo_, camera_ssbo_, instance_vbo_,
+  const unsigned buffers[] = {facet_ssbo_, camera_ssbo_, instance_vbo_, splat_ssbo_, splat_order_vbo_,
                               meshes_[0].vbo, meshes_[0].ibo, meshes_[1].vbo, meshes_[1].ibo};
   for (unsigned b : buffers)
     if (b) glDeleteBuffers(1, &b);
   if (billboard_vao_) glDeleteVertexArrays(1, &billboard_vao_);
+  if (splat_vao_) glDeleteVertexArrays(1, &splat_vao_);
   for (const auto& m : meshes_)
     if (m.vao) glDeleteVertexArrays(1, &m.vao);
   if (color_array_) glDeleteTextures(1, &color_array_);
@@ -623,7 +704,11 @@ Result<DrawStats> ModelRenderer::draw(const ViewCamera& view, const DrawOptions&
   if (view.K.width != target.width() || view.K.height != target.height())
     return fail(fmt::format("view is {}x{} but the target is {}x{}", view.K.width, view.K.height, target.width(), target.height()));
   if (!view.world_from_camera.matrix().allFinite()) return fail("view pose is not finite");
-  const bool mesh_pass = o.geometry != DrawOptions::Geometry::kBillboards;
+  if (o.geometry == DrawOptions::Geometry::kSplats && model_.splats.empty())
+    return fail("the model has no fitted billboards (reconstruct with --fit)");
+  const bool mesh_pass = o.geometry == DrawOptions::Geometry::kMesh || o.geometry == DrawOptions::Geometry::kSurface;
+  if (o.geometry != DrawOptions::Geometry::kSplats && color_array_ == 0)
+    return fail("the model has no camera textures: only its fitted billboards can be drawn (--geometry fitted)");
   if (mesh_pass && !has_mesh(o.geometry))
     return fail(o.geometry == DrawOptions::Geometry::kMesh ? "the model has no patch mesh to draw" : "the model has no fused surface mesh to draw");
   Stopwatch clock;
@@ -632,7 +717,9 @@ Result<DrawStats> ModelRenderer::draw(const ViewCamera& view, const DrawOptions&
   std::tie(pass.near_m, pass.far_m) = depth_range(model_, view, o);
   if (auto c = clear_and_environment(pass, target, st); !c) return std::unexpected(c.error());
   bind_model_state();
-  if (o.geometry == DrawOptions::Geometry::kBillboards) {
+  if (o.geometry == DrawOptions::Geometry::kSplats) {
+    if (auto sp = draw_splats(pass, target, st); !sp) return std::unexpected(sp.error());
+  } else if (o.geometry == DrawOptions::Geometry::kBillboards) {
     draw_billboards(pass, st);
   } else {
     const GpuMesh& g = meshes_[o.geometry == DrawOptions::Geometry::kSurface ? 1 : 0];
@@ -781,6 +868,55 @@ void ModelRenderer::draw_billboards(const Pass& pass, DrawStats& st) {
   glBindBuffer(GL_ARRAY_BUFFER, instance_vbo_);
   glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(instances_.size() * sizeof(FacetInstance)), instances_.data(), GL_STREAM_DRAW);
   if (!instances_.empty()) glDrawArraysInstanced(GL_TRIANGLE_STRIP, 0, 4, GLsizei(instances_.size()));
+}
+
+// Fitted billboards: sorted far to near by their depth in the view, drawn
+// "over" into a half-float copy of the target (the background and
+// environment already there), copied back.
+Status ModelRenderer::draw_splats(const Pass& pass, const Framebuffer& target, DrawStats& st) {
+  const size_t stride = size_t(model_.splat_layout.stride()), n = model_.splat_count();
+  if (!splat_target_ || splat_target_->width() != target.width() || splat_target_->height() != target.height()) {
+    auto fb = Framebuffer::create(target.width(), target.height(), true);
+    if (!fb) return std::unexpected(fb.error());
+    splat_target_ = std::make_unique<Framebuffer>(std::move(*fb));
+  }
+  target.blit_to(*splat_target_);
+  splat_target_->bind();
+  const Eigen::Matrix4f cfw = pass.view.world_from_camera.inverse().matrix().cast<float>();
+  const Eigen::Vector4f zrow = cfw.row(2);
+  std::vector<std::pair<uint32_t, uint32_t>> keys;
+  keys.reserve(n);
+  for (size_t i = 0; i < n; ++i) {
+    const float* c = &model_.splats[i * stride];
+    const float z = zrow[0] * c[0] + zrow[1] * c[1] + zrow[2] * c[2] + zrow[3];
+    if (!(z > pass.near_m)) continue;
+    uint32_t bits;
+    std::memcpy(&bits, &z, 4);
+    keys.emplace_back(~bits, uint32_t(i));  // far first: descending z
+  }
+  std::sort(keys.begin(), keys.end());
+  splat_order_.resize(keys.size());
+  for (size_t i = 0; i < keys.size(); ++i) splat_order_[i] = keys[i].second;
+  st.selection.facets = n;
+  st.selection.drawn = keys.size();
+  glDisable(GL_DEPTH_TEST);
+  glEnable(GL_BLEND);
+  glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);
+  const GlProgram& p = programs_->splat;
+  glUseProgram(p.id());
+  set_view_uniforms(p, pass.view, pass.near_m, pass.far_m);
+  glUniform1i(p.uniform("u_stride"), int(stride));
+  glUniform1i(p.uniform("u_coeffs"), model_.splat_layout.coeffs());
+  glUniform2f(p.uniform("u_size"), float(target.width()), float(target.height()));
+  glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 2, splat_ssbo_);
+  glBindVertexArray(splat_vao_);
+  glBindBuffer(GL_ARRAY_BUFFER, splat_order_vbo_);
+  glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(splat_order_.size() * sizeof(uint32_t)), splat_order_.data(), GL_STREAM_DRAW);
+  if (!splat_order_.empty()) glDrawArraysInstanced(GL_TRIANGLE_STRIP, 0, 4, GLsizei(splat_order_.size()));
+  glDisable(GL_BLEND);
+  glEnable(GL_DEPTH_TEST);
+  splat_target_->blit_to(target);
+  return {};
 }
 
 }  // namespace s2r

@@ -55,8 +55,9 @@ class GlossyRenderer;
 class GlProgram;
 
 struct DrawOptions {
-  // kMesh: the octree's patch mesh; kSurface: the fused surface mesh.
-  enum class Geometry { kBillboards, kMesh, kSurface };
+  // kMesh: the octree's patch mesh; kSurface: the fused surface mesh;
+  // kSplats: the fitted billboards (reconstruct --fit).
+  enum class Geometry { kBillboards, kMesh, kSurface, kSplats };
   Geometry geometry = Geometry::kBillboards;
   bool depth_clip = true;
   bool color_by_camera = false;  // flat colour per chosen camera (the paper's figure 6(d))
@@ -80,6 +81,16 @@ struct DrawOptions {
   // glossy floor and props (render/glossy_renderer.h). Not owned.
   GlossyRenderer* environment = nullptr;
 };
+
+// "billboards", "mesh", "surface", "fitted" (the command line's names).
+constexpr const char* geometry_name(DrawOptions::Geometry g) {
+  switch (g) {
+    case DrawOptions::Geometry::kMesh: return "mesh";
+    case DrawOptions::Geometry::kSurface: return "surface";
+    case DrawOptions::Geometry::kSplats: return "fitted";
+    default: return "billboards";
+  }
+}
 
 struct DrawStats {
   SelectionStats selection;   // billboards
@@ -106,6 +117,7 @@ class ModelRenderer {
   Result<DrawStats> draw(const ViewCamera& view, const DrawOptions& options, const Framebuffer& target);
 
   const Model& model() const { return model_; }
+  bool has_splats() const { return !model_.splats.empty(); }
   bool has_mesh(DrawOptions::Geometry g = DrawOptions::Geometry::kMesh) const {
     return meshes_[g == DrawOptions::Geometry::kSurface ? 1 : 0].triangles > 0;
   }
@@ -127,6 +139,7 @@ class ModelRenderer {
   std::vector<int> nearest_cameras(const ViewCamera& view, int k) const;
   void draw_mesh(const Pass& pass, const GpuMesh& g, size_t triangles, bool nearest, DrawStats& st) const;
   void draw_billboards(const Pass& pass, DrawStats& st);
+  Status draw_splats(const Pass& pass, const Framebuffer& target, DrawStats& st);
   Model model_;
   std::unique_ptr<Programs> programs_;
   unsigned color_array_ = 0, distance_array_ = 0;
@@ -140,6 +153,9 @@ class ModelRenderer {
   FacetHierarchy hierarchy_;
   std::vector<uint32_t> candidates_;
   std::vector<FacetInstance> instances_;
+  unsigned splat_ssbo_ = 0, splat_vao_ = 0, splat_order_vbo_ = 0;
+  std::unique_ptr<Framebuffer> splat_target_;
+  std::vector<uint32_t> splat_order_;
 };
 
 }  // namespace s2r

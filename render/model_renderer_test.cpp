@@ -20,6 +20,7 @@
 #include "render/model_renderer.h"
 #include "render/test_xserver.h"
 #include "render/viewer.h"
+#include "reconstruct/splat_fit.h"
 
 namespace s2r {
 namespace {
@@ -435,6 +436,79 @@ TEST(Hybrid, PatchMeshWhereReliableBillboardsElsewhere) {
     EXPECT_EQ(st_all.triangles, total_triangles) << deg;
     EXPECT_EQ(st_all.selection.drawn, 0u) << deg;
   }
+}
+
+// Fitted billboards on the square, coloured by its albedo, with a
+// view-dependent term: the GL pass against the fit's own CPU image formation.
+std::vector<Splat> square_splats() {
+  std::vector<Splat> out;
+  const int n = int(std::floor(kHalf / kVoxel));
+  for (int i = -n; i <= n; ++i)
+    for (int j = -n; j <= n; ++j) {
+      Splat s;
+      s.anchor = Eigen::Vector3f(float(i * kVoxel), float(j * kVoxel), 0.f);
+      s.voxel = float(kVoxel);
+      s.log_sigma = std::log(0.6f * float(kVoxel));
+      s.opacity_logit = 1.5f;
+      const auto a = albedo(i * kVoxel, j * kVoxel);
+      for (int c = 0; c < 3; ++c) s.sh[size_t(c)] = (a[size_t(c)] / 255.f - 0.5f) / 0.28209479177387814f;
+      s.sh[3 * 3 + 0] = 0.3f;  // red brightens towards -x
+      out.push_back(s);
+    }
+  return out;
+}
+
+void put_splats(Model& m, const std::vector<Splat>& splats) {
+  m.splat_layout.sh_degree = 1;
+  m.splats.clear();
+  for (const Splat& s : splats) {
+    m.splats.insert(m.splats.end(), {s.anchor.x(), s.anchor.y(), s.anchor.z(), s.sigma(), s.opacity()});
+    for (int k = 0; k < 12; ++k) m.splats.push_back(s.sh[size_t(k)]);
+  }
+}
+
+TEST(Fitted, GlDrawsTheFitsImageFormation) {
+  TestModel t = make_model("fitted", kArc);
+  const auto splats = square_splats();
+  put_splats(t.model, splats);
+  ASSERT_TRUE(save_model(t.dir, t.model));
+  auto loaded = load_model(t.dir);
+  ASSERT_TRUE(loaded) << loaded.error().message;
+  ASSERT_EQ(loaded->splat_count(), splats.size());
+  Gl g = open(t);
+  ASSERT_TRUE(g.renderer);
+  DrawOptions o = background_options();
+  o.geometry = DrawOptions::Geometry::kSplats;
+  for (double deg : {-40.0, 7.0, 25.0}) {
+    const ViewCamera v = arc_camera(deg);  // with the lens's distortion
+    DrawStats st;
+    const ImageU8 drawn = rgb(draw(g, v, o, &st));
+    EXPECT_EQ(st.selection.drawn, splats.size());
+    const std::array<float, 3> bg{kBackground[0] / 255.f, kBackground[1] / 255.f, kBackground[2] / 255.f};
+    const ImageF cpu = render_splats(splats, 4, v.K, v.world_from_camera, bg);
+    ImageU8 ref(cpu.width, cpu.height, 3);
+    for (size_t i = 0; i < cpu.data.size(); ++i) ref.data[i] = uint8_t(std::lround(std::clamp(cpu.data[i], 0.f, 1.f) * 255));
+    const double p = *psnr(drawn, ref);
+    EXPECT_GT(p, 40.0) << "at " << deg << " degrees";
+  }
+}
+
+TEST(Fitted, AModelWithoutTexturesDrawsOnlyItsFit) {
+  TestModel t = make_model("fitted_only", kArc);
+  put_splats(t.model, square_splats());
+  for (auto& c : t.model.cameras) c.texture.clear();
+  ASSERT_TRUE(save_model(t.dir, t.model));
+  Gl g = open(t);
+  ASSERT_TRUE(g.renderer);
+  EXPECT_EQ(g.renderer->texture_bytes(), 0u);
+  auto fb = Framebuffer::create(160, 120);
+  ASSERT_TRUE(fb);
+  DrawOptions o = background_options();
+  auto bb = g.renderer->draw(arc_camera(0), o, *fb);
+  ASSERT_FALSE(bb);
+  EXPECT_NE(bb.error().message.find("fitted"), std::string::npos) << bb.error().message;
+  o.geometry = DrawOptions::Geometry::kSplats;
+  EXPECT_TRUE(g.renderer->draw(arc_camera(0), o, *fb));
 }
 
 TEST(ViewFile, RoundTripsAndRejectsNaN) {

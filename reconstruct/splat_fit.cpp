@@ -1,0 +1,679 @@
+#include "reconstruct/splat_fit.h"
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <map>
+#include <numeric>
+#include <random>
+#include <thread>
+
+#include <spdlog/fmt/fmt.h>
+
+#include "core/parallel.h"
+
+namespace s2r {
+
+namespace {
+
+constexpr int kTile = 16;
+constexpr float kAlphaMin = 1.f / 255.f;
+constexpr float kAlphaMax = 0.99f;
+constexpr float kStopT = 1e-4f;
+constexpr float kCut = 3.f;  // the footprint is cut at 3 sigma
+
+// SH constants in 3DGS's order.
+constexpr float kC0 = 0.28209479177387814f;
+constexpr float kC1 = 0.4886025119029199f;
+constexpr float kC2[5] = {1.0925484305920792f, -1.0925484305920792f, 0.31539156525252005f, -1.0925484305920792f,
+                          0.5462742152960396f};
+
+float logit(float p) { return std::log(p / (1.f - p)); }
+
+// One splat as one image sees it.
+struct Projected {
+  float u, v;         // centre, pixels
+  float sigma;        // pixels
+  float inv2s2;       // 1 / (2 sigma^2)
+  float r2max;        // (3 sigma)^2
+  float o;            // opacity
+  float c[3];         // colour
+  Eigen::Vector3f pc; // camera-frame centre
+  uint32_t id;        // splat index
+  uint8_t clamped;    // bit per channel: the colour was clamped at 0
+};
+
+// The projected splats of one image, sorted near to far, and each tile's
+// list of them (indices into `p`, near to far).
+struct SplatFrame {
+  int width = 0, height = 0, tiles_x = 0, tiles_y = 0;
+  std::vector<Projected> p;
+  std::vector<uint32_t> tile_start, tile_list;
+};
+
+// LSD radix sort of (positive float key, index) pairs by key.
+void radix_sort(std::vector<std::pair<uint32_t, uint32_t>>& a) {
+  std::vector<std::pair<uint32_t, uint32_t>> tmp(a.size());
+  for (int shift = 0; shift < 32; shift += 8) {
+    size_t count[257] = {};
+    for (const auto& e : a) ++count[((e.first >> shift) & 0xff) + 1];
+    for (int i = 0; i < 256; ++i) count[i + 1] += count[i];
+    for (const auto& e : a) tmp[count[(e.first >> shift) & 0xff]++] = e;
+    a.swap(tmp);
+  }
+}
+
+Intrinsics scaled(const Intrinsics& K, int s) {
+  if (s == 1) return K;
+  Intrinsics k = K;
+  k.width = K.width / s;
+  k.height = K.height / s;
+  k.fx = K.fx / s, k.fy = K.fy / s;
+  k.cx = (K.cx + 0.5) / s - 0.5, k.cy = (K.cy + 0.5) / s - 0.5;
+  return k;
+}
+
+SplatFrame project(const std::vector<Splat>& splats, int coeffs, const Intrinsics& K, const Eigen::Isometry3d& world_from_camera,
+              int threads) {
+  SplatFrame f;
+  f.width = K.width, f.height = K.height;
+  f.tiles_x = (K.width + kTile - 1) / kTile, f.tiles_y = (K.height + kTile - 1) / kTile;
+  const Eigen::Isometry3f cfw = world_from_camera.inverse().cast<float>();
+  const Eigen::Vector3f eye = world_from_camera.translation().cast<float>();
+  const bool lens = K.has_distortion();
+  const int n = int(splats.size());
+  const int workers = std::max(1, std::min(worker_count(threads), n / 4096 + 1));
+  std::vector<std::vector<Projected>> part{size_t(workers)};
+  parallel_for(workers, workers, [&](int w) {
+    auto& out = part[size_t(w)];
+    const int lo = int(int64_t(n) * w / workers), hi = int(int64_t(n) * (w + 1) / workers);
+    float basis[kMaxShCoeffs];
+    for (int i = lo; i < hi; ++i) {
+      const Splat& s = splats[size_t(i)];
+      const Eigen::Vector3f X = s.centre();
+      const Eigen::Vector3f pc = cfw * X;
+      if (!(pc.z() > 1e-3f)) continue;
+      float u, v;
+      if (lens) {
+        auto px = K.project(pc.cast<double>());
+        if (!px) continue;
+        u = float(px->x()), v = float(px->y());
+      } else {
+        u = float(K.fx) * pc.x() / pc.z() + float(K.cx);
+        v = float(K.fy) * pc.y() / pc.z() + float(K.cy);
+      }
+      const float sigma = s.sigma() * float(K.fx) / pc.z();
+      const float r = kCut * sigma;
+      if (u + r < -0.5f || v + r < -0.5f || u - r > K.width - 0.5f || v - r > K.height - 0.5f) continue;
+      const float o = s.opacity();
+      if (o < kAlphaMin) continue;
+      Projected p;
+      p.u = u, p.v = v;
+      p.sigma = std::max(sigma, 1e-4f);
+      p.inv2s2 = 0.5f / (p.sigma * p.sigma);
+      p.r2max = r * r;
+      p.o = o;
+      p.pc = pc;
+      p.id = uint32_t(i);
+      p.clamped = 0;
+      sh_basis((X - eye).normalized(), coeffs, basis);
+      for (int c = 0; c < 3; ++c) {
+        float val = 0.5f;
+        for (int k = 0; k < coeffs; ++k) val += s.sh[size_t(k * 3 + c)] * basis[k];
+        if (val < 0) val = 0, p.clamped |= uint8_t(1 << c);
+        p.c[c] = val;
+      }
+      out.push_back(p);
+    }
+  });
+  std::vector<std::pair<uint32_t, uint32_t>> keys;
+  std::vector<Projected> all;
+  for (auto& v : part) all.insert(all.end(), v.begin(), v.end());
+  keys.reserve(all.size());
+  for (size_t i = 0; i < all.size(); ++i) {
+    uint32_t bits;
+    std::memcpy(&bits, &all[i].pc.z(), 4);
+    keys.emplace_back(bits, uint32_t(i));
+  }
+  radix_sort(keys);
+  f.p.resize(all.size());
+  for (size_t i = 0; i < keys.size(); ++i) f.p[i] = all[keys[i].second];
+  // Tile lists: count, prefix sums, fill in depth order.
+  const size_t tiles = size_t(f.tiles_x) * f.tiles_y;
+  f.tile_start.assign(tiles + 1, 0);
+  auto range = [&](const Projected& p, int& x0, int& x1, int& y0, int& y1) {
+    const float r = std::sqrt(p.r2max);
+    x0 = std::max(0, int(std::floor((p.u - r + 0.5f) / kTile)));
+    x1 = std::min(f.tiles_x - 1, int(std::floor((p.u + r + 0.5f) / kTile)));
+    y0 = std::max(0, int(std::floor((p.v - r + 0.5f) / kTile)));
+    y1 = std::min(f.tiles_y - 1, int(std::floor((p.v + r + 0.5f) / kTile)));
+  };
+  for (const auto& p : f.p) {
+    int x0, x1, y0, y1;
+    range(p, x0, x1, y0, y1);
+    for (int ty = y0; ty <= y1; ++ty)
+      for (int tx = x0; tx <= x1; ++tx) ++f.tile_start[size_t(ty) * f.tiles_x + tx + 1];
+  }
+  for (size_t t = 0; t < tiles; ++t) f.tile_start[t + 1] += f.tile_start[t];
+  f.tile_list.resize(f.tile_start[tiles]);
+  std::vector<uint32_t> fill(f.tile_start.begin(), f.tile_start.end() - 1);
+  for (size_t i = 0; i < f.p.size(); ++i) {
+    int x0, x1, y0, y1;
+    range(f.p[i], x0, x1, y0, y1);
+    for (int ty = y0; ty <= y1; ++ty)
+      for (int tx = x0; tx <= x1; ++tx) f.tile_list[fill[size_t(ty) * f.tiles_x + tx]++] = uint32_t(i);
+  }
+  return f;
+}
+
+// Per projected splat, what one thread's pixels owe it.
+struct Grad {
+  float c[3], o, sigma, u, v, weight;
+};
+
+// Tiles handed out one at a time; body(tile, thread).
+void for_tiles(const SplatFrame& f, int threads, const std::function<void(int, int)>& body) {
+  const int tiles = f.tiles_x * f.tiles_y;
+  const int workers = std::max(1, std::min(worker_count(threads), tiles));
+  std::atomic<int> next{0};
+  parallel_for(workers, workers, [&](int w) {
+    for (int t = next++; t < tiles; t = next++) body(t, w);
+  });
+}
+
+// One tile's pixels while it is composited: splat by splat in depth
+// order, each over the pixels of its 3-sigma box only (the work is the
+// footprints' area, not the tile's area times its list).
+struct TileState {
+  int x0 = 0, y0 = 0, w = 0, h = 0;
+  float T[kTile * kTile];
+  float C[kTile * kTile * 3];
+  uint32_t end[kTile * kTile];  // list entries [lo, end) were composited
+  bool done[kTile * kTile];
+};
+
+// The footprint's pixel box inside the tile; false when empty.
+inline bool footprint(const Projected& p, const TileState& st, int& xa, int& xb, int& ya, int& yb) {
+  const float r = std::sqrt(p.r2max);
+  xa = std::max(st.x0, int(std::ceil(p.u - r))), xb = std::min(st.x0 + st.w - 1, int(std::floor(p.u + r)));
+  ya = std::max(st.y0, int(std::ceil(p.v - r))), yb = std::min(st.y0 + st.h - 1, int(std::floor(p.v + r)));
+  return xa <= xb && ya <= yb;
+}
+
+void tile_forward(const SplatFrame& f, int tile, const float* bg, TileState& st) {
+  const int tx = tile % f.tiles_x, ty = tile / f.tiles_x;
+  st.x0 = tx * kTile, st.y0 = ty * kTile;
+  st.w = std::min(kTile, f.width - st.x0), st.h = std::min(kTile, f.height - st.y0);
+  const uint32_t lo = f.tile_start[size_t(tile)], hi = f.tile_start[size_t(tile) + 1];
+  const int n = st.w * st.h;
+  std::fill(st.T, st.T + n, 1.f);
+  std::fill(st.C, st.C + 3 * n, 0.f);
+  std::fill(st.end, st.end + n, hi);
+  std::fill(st.done, st.done + n, false);
+  int alive = n;
+  for (uint32_t j = lo; j < hi && alive > 0; ++j) {
+    const Projected& p = f.p[f.tile_list[j]];
+    int xa, xb, ya, yb;
+    if (!footprint(p, st, xa, xb, ya, yb)) continue;
+    for (int y = ya; y <= yb; ++y) {
+      const float dy = float(y) - p.v;
+      const int row = (y - st.y0) * st.w - st.x0;
+      for (int x = xa; x <= xb; ++x) {
+        const int i = row + x;
+        if (st.done[i]) continue;
+        const float dx = float(x) - p.u;
+        const float d2 = dx * dx + dy * dy;
+        if (d2 > p.r2max) continue;
+        const float alpha = std::min(kAlphaMax, p.o * std::exp(-d2 * p.inv2s2));
+        if (alpha < kAlphaMin) continue;
+        const float next = st.T[i] * (1.f - alpha);
+        if (next < kStopT) {
+          st.done[i] = true, st.end[i] = j, --alive;
+          continue;
+        }
+        const float w = alpha * st.T[i];
+        st.C[3 * i] += w * p.c[0], st.C[3 * i + 1] += w * p.c[1], st.C[3 * i + 2] += w * p.c[2];
+        st.T[i] = next;
+      }
+    }
+  }
+  for (int i = 0; i < n; ++i)
+    for (int c = 0; c < 3; ++c) st.C[3 * i + c] += st.T[i] * bg[c];
+}
+
+// Squared error of one image and, into `grads_out` (per thread, per projected
+// splat; null: the error only), the gradient of `scale` * squared error.
+double forward_backward(const SplatFrame& f, const ImageU8& target, const float* bg, float scale, int threads,
+                        std::vector<std::vector<Grad>>* grads_out) {
+  const int workers = std::max(1, std::min(worker_count(threads), f.tiles_x * f.tiles_y));
+  if (grads_out) {
+    grads_out->resize(size_t(workers));
+    for (auto& g : *grads_out) g.assign(f.p.size(), Grad{});
+  }
+  std::vector<double> err(size_t(workers), 0.0);
+  const int ch = target.channels;
+  for_tiles(f, threads, [&](int tile, int wk) {
+    TileState st;
+    tile_forward(f, tile, bg, st);
+    const int n = st.w * st.h;
+    float dC[kTile * kTile * 3], S[kTile * kTile * 3];
+    double e = 0;
+    for (int i = 0; i < n; ++i) {
+      const int x = st.x0 + i % st.w, y = st.y0 + i / st.w;
+      const uint8_t* gt = &target.data[(size_t(y) * target.width + x) * ch];
+      for (int c = 0; c < 3; ++c) {
+        const float diff = st.C[3 * i + c] - float(gt[c]) * (1.f / 255.f);
+        e += double(diff) * diff;
+        dC[3 * i + c] = 2.f * scale * diff;
+        S[3 * i + c] = st.T[i] * bg[c];  // what lies behind, the background first
+      }
+    }
+    err[size_t(wk)] += e;
+    if (!grads_out) return;
+    Grad* G = (*grads_out)[size_t(wk)].data();
+    const uint32_t lo = f.tile_start[size_t(tile)];
+    uint32_t last = lo;
+    for (int i = 0; i < n; ++i) last = std::max(last, st.end[i]);
+    // Back to front, undoing each splat's step of the transmittance.
+    for (uint32_t j = last; j-- > lo;) {
+      const uint32_t pi = f.tile_list[j];
+      const Projected& p = f.p[pi];
+      int xa, xb, ya, yb;
+      if (!footprint(p, st, xa, xb, ya, yb)) continue;
+      Grad acc{};
+      bool touched = false;
+      for (int y = ya; y <= yb; ++y) {
+        const float dy = float(y) - p.v;
+        const int row = (y - st.y0) * st.w - st.x0;
+        for (int x = xa; x <= xb; ++x) {
+          const int i = row + x;
+          if (j >= st.end[i]) continue;
+          const float dx = float(x) - p.u;
+          const float d2 = dx * dx + dy * dy;
+          if (d2 > p.r2max) continue;
+          const float g = std::exp(-d2 * p.inv2s2);
+          const float raw = p.o * g;
+          const float alpha = std::min(kAlphaMax, raw);
+          if (alpha < kAlphaMin) continue;
+          touched = true;
+          const float Ti = st.T[i] / (1.f - alpha);
+          const float w = alpha * Ti;
+          float dalpha = 0;
+          for (int c = 0; c < 3; ++c) {
+            acc.c[c] += dC[3 * i + c] * w;
+            dalpha += dC[3 * i + c] * (p.c[c] * Ti - S[3 * i + c] / (1.f - alpha));
+            S[3 * i + c] += p.c[c] * w;
+          }
+          acc.weight += w;
+          st.T[i] = Ti;
+          if (raw >= kAlphaMax) continue;  // clamped: no gradient to o or the footprint
+          acc.o += dalpha * g;
+          const float dg = dalpha * p.o * g * 2.f * p.inv2s2;
+          // g = exp(-d2 / (2 s^2)): dg/ds = g d2 / s^3, dg/du = g dx / s^2.
+          acc.sigma += dg * d2 / p.sigma;
+          acc.u += dg * dx;
+          acc.v += dg * dy;
+        }
+      }
+      if (!touched) continue;
+      Grad& gr = G[pi];
+      for (int c = 0; c < 3; ++c) gr.c[c] += acc.c[c];
+      gr.o += acc.o, gr.sigma += acc.sigma, gr.u += acc.u, gr.v += acc.v, gr.weight += acc.weight;
+    }
+  });
+  return std::accumulate(err.begin(), err.end(), 0.0);
+}
+
+ImageU8 downscale(const ImageU8& im, int s) {
+  if (s == 1 && im.channels == 3) return im;
+  ImageU8 out(im.width / s, im.height / s, 3);
+  for (int y = 0; y < out.height; ++y)
+    for (int x = 0; x < out.width; ++x)
+      for (int c = 0; c < 3; ++c) {
+        int sum = 0;
+        for (int dy = 0; dy < s; ++dy)
+          for (int dx = 0; dx < s; ++dx) sum += im.at(x * s + dx, y * s + dy, std::min(c, im.channels - 1));
+        out.at(x, y, c) = uint8_t((sum + s * s / 2) / (s * s));
+      }
+  return out;
+}
+
+// The parameters of one splat as a flat vector (the optimiser's view).
+int param_count(int coeffs) { return 5 + 3 * coeffs; }
+void gather(const Splat& s, int coeffs, float* out) {
+  out[0] = s.offset.x(), out[1] = s.offset.y(), out[2] = s.offset.z();
+  out[3] = s.log_sigma, out[4] = s.opacity_logit;
+  for (int k = 0; k < 3 * coeffs; ++k) out[5 + k] = s.sh[size_t(k)];
+}
+void scatter(const float* in, int coeffs, Splat& s) {
+  const float h = 0.5f * s.voxel;
+  s.offset = Eigen::Vector3f(std::clamp(in[0], -h, h), std::clamp(in[1], -h, h), std::clamp(in[2], -h, h));
+  s.log_sigma = std::clamp(in[3], std::log(0.05f * s.voxel), std::log(4.f * s.voxel));
+  s.opacity_logit = std::clamp(in[4], -12.f, 12.f);
+  for (int k = 0; k < 3 * coeffs; ++k) s.sh[size_t(k)] = in[5 + k];
+}
+
+// Halves the grid: each splat kept becomes its eight children.
+std::vector<Splat> split(const std::vector<Splat>& in) {
+  std::vector<Splat> out;
+  out.reserve(in.size() * 8);
+  for (const Splat& s : in) {
+    const float q = 0.25f * s.voxel;
+    const float o = 1.f - std::sqrt(1.f - std::min(s.opacity(), 0.99f));
+    for (int k = 0; k < 8; ++k) {
+      Splat c = s;
+      c.voxel = 0.5f * s.voxel;
+      c.anchor = s.anchor + Eigen::Vector3f((k & 1) ? q : -q, (k & 2) ? q : -q, (k & 4) ? q : -q);
+      c.offset = s.offset.cwiseMax(-0.5f * c.voxel).cwiseMin(0.5f * c.voxel);
+      c.log_sigma = s.log_sigma - std::log(2.f);
+      c.opacity_logit = logit(std::clamp(o, 1e-4f, 0.99f));
+      out.push_back(c);
+    }
+  }
+  return out;
+}
+
+bool finite(const Splat& s, int coeffs) {
+  if (!s.offset.allFinite() || !std::isfinite(s.log_sigma) || !std::isfinite(s.opacity_logit)) return false;
+  for (int k = 0; k < 3 * coeffs; ++k)
+    if (!std::isfinite(s.sh[size_t(k)])) return false;
+  return true;
+}
+
+}  // namespace
+
+void sh_basis(const Eigen::Vector3f& d, int n, float* out) {
+  out[0] = kC0;
+  if (n < 4) return;
+  const float x = d.x(), y = d.y(), z = d.z();
+  out[1] = -kC1 * y, out[2] = kC1 * z, out[3] = -kC1 * x;
+  if (n < 9) return;
+  out[4] = kC2[0] * x * y;
+  out[5] = kC2[1] * y * z;
+  out[6] = kC2[2] * (2 * z * z - x * x - y * y);
+  out[7] = kC2[3] * x * z;
+  out[8] = kC2[4] * (x * x - y * y);
+}
+
+Eigen::Vector3f splat_color(const Splat& s, int coeffs, const Eigen::Vector3f& dir) {
+  float b[kMaxShCoeffs];
+  sh_basis(dir, coeffs, b);
+  Eigen::Vector3f c = Eigen::Vector3f::Constant(0.5f);
+  for (int k = 0; k < coeffs; ++k)
+    for (int ch = 0; ch < 3; ++ch) c[ch] += s.sh[size_t(k * 3 + ch)] * b[k];
+  return c.cwiseMax(0.f);
+}
+
+ImageF render_splats(const std::vector<Splat>& splats, int coeffs, const Intrinsics& K,
+                     const Eigen::Isometry3d& world_from_camera, const std::array<float, 3>& background, ImageF* alpha_out,
+                     int threads) {
+  const SplatFrame f = project(splats, coeffs, K, world_from_camera, threads);
+  ImageF out(K.width, K.height, 3);
+  if (alpha_out) *alpha_out = ImageF(K.width, K.height, 1);
+  for_tiles(f, threads, [&](int tile, int) {
+    TileState st;
+    tile_forward(f, tile, background.data(), st);
+    for (int i = 0; i < st.w * st.h; ++i) {
+      const int x = st.x0 + i % st.w, y = st.y0 + i / st.w;
+      for (int c = 0; c < 3; ++c) out.at(x, y, c) = st.C[3 * i + c];
+      if (alpha_out) alpha_out->at(x, y) = 1.f - st.T[i];
+    }
+  });
+  return out;
+}
+
+Status SplatFitOptions::validate() const {
+  if (!(seconds > 0) && max_epochs <= 0) return fail(ErrorCode::invalid, "fit: seconds: must be > 0 (or max_epochs set)");
+  if (sh_degree < 0 || sh_degree > 2) return fail(ErrorCode::invalid, "fit: sh_degree: must be 0, 1 or 2");
+  if (!(sigma_init > 0)) return fail(ErrorCode::invalid, "fit: sigma_init: must be > 0");
+  if (!(opacity_init > 0 && opacity_init < 1)) return fail(ErrorCode::invalid, "fit: opacity_init: must be in (0, 1)");
+  for (double lr : {lr_color, lr_rest, lr_opacity, lr_sigma, lr_offset})
+    if (!(lr >= 0) || !std::isfinite(lr)) return fail(ErrorCode::invalid, "fit: learning rates must be >= 0 and finite");
+  if (!(lr_final > 0 && lr_final <= 1)) return fail(ErrorCode::invalid, "fit: lr_final: must be in (0, 1]");
+  if (!(refine_at > 0 && refine_at < 1)) return fail(ErrorCode::invalid, "fit: refine_at: must be in (0, 1)");
+  for (float b : background)
+    if (!(b >= 0 && b <= 1)) return fail(ErrorCode::invalid, "fit: background: each channel must be in [0, 1]");
+  return {};
+}
+
+std::vector<Splat> init_splats(const std::vector<Eigen::Vector3f>& anchors, float voxel, const std::vector<SplatView>& views,
+                               const SplatFitOptions& options) {
+  std::vector<Splat> out(anchors.size());
+  parallel_for(int(anchors.size() + 4095) / 4096, options.threads, [&](int chunk) {
+    for (size_t i = size_t(chunk) * 4096; i < std::min(anchors.size(), size_t(chunk + 1) * 4096); ++i) {
+      Splat& s = out[i];
+      s.anchor = anchors[i];
+      s.voxel = voxel;
+      s.log_sigma = std::log(float(options.sigma_init) * voxel);
+      s.opacity_logit = logit(float(options.opacity_init));
+      Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+      int n = 0;
+      for (const auto& v : views) {
+        const auto px = v.intrinsics.project(v.world_from_camera.inverse() * anchors[i].cast<double>());
+        if (!px || !v.intrinsics.contains(*px)) continue;
+        const int x = int(std::lround(px->x())), y = int(std::lround(px->y()));
+        if (x < 0 || y < 0 || x >= v.photo->width || y >= v.photo->height) continue;
+        for (int c = 0; c < 3; ++c) sum[c] += v.photo->at(x, y, std::min(c, v.photo->channels - 1)) / 255.0;
+        ++n;
+      }
+      const Eigen::Vector3d mean = n ? Eigen::Vector3d(sum / n) : Eigen::Vector3d::Constant(0.5);
+      for (int c = 0; c < 3; ++c) s.sh[size_t(c)] = float((mean[c] - 0.5) / kC0);
+    }
+  });
+  return out;
+}
+
+Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vector<SplatView>& views,
+                                   const SplatFitOptions& o) {
+  if (auto st = o.validate(); !st) return std::unexpected(st.error());
+  if (views.empty()) return fail(ErrorCode::invalid, "fit: no training photos");
+  if (splats_io.empty()) return fail(ErrorCode::invalid, "fit: no facets to fit");
+  for (const auto& v : views)
+    if (!v.photo || v.photo->width != v.intrinsics.width || v.photo->height != v.intrinsics.height)
+      return fail(ErrorCode::invalid, "fit: a photo's size differs from its camera's");
+  using clock = std::chrono::steady_clock;
+  const auto t0 = clock::now();
+  auto elapsed = [&] { return std::chrono::duration<double>(clock::now() - t0).count(); };
+  const int coeffs = sh_coeffs(o.sh_degree);
+  const int np = param_count(coeffs);
+  std::vector<Splat> splats = splats_io;
+  SplatFitSummary sum;
+  sum.initial = splats.size();
+  // The pyramid's levels, built once when first used.
+  std::map<int, std::vector<ImageU8>> pyramid;
+  auto level = [&](int s) -> const std::vector<ImageU8>& {
+    auto it = pyramid.find(s);
+    if (it != pyramid.end()) return it->second;
+    std::vector<ImageU8> l(views.size());
+    parallel_for(int(views.size()), o.threads, [&](int i) { l[size_t(i)] = downscale(*views[size_t(i)].photo, s); });
+    return pyramid.emplace(s, std::move(l)).first->second;
+  };
+  // Stages: before the grid's refinement and after it. Each stage's image
+  // scale: coarse for its first half.
+  const int max_dim = std::max(views[0].intrinsics.width, views[0].intrinsics.height);
+  const int coarse = max_dim >= 1200 ? 4 : max_dim >= 300 ? 2 : 1;
+  struct Stage {
+    double from, to;  // fractions of the budget
+    int scale_first, scale_second;
+  };
+  std::vector<Stage> stages;
+  if (o.refine) stages = {{0, o.refine_at, coarse * 2, coarse}, {o.refine_at, 1, coarse, 1}};
+  else stages = {{0, 1, coarse, 1}};
+  std::mt19937 rng(7);
+  std::vector<float> m, v, used;
+  long step = 0;
+  int epoch = 0;
+  std::vector<std::vector<Grad>> grads;
+  std::vector<int> order(views.size());
+  std::iota(order.begin(), order.end(), 0);
+  size_t next_mark = 0;
+  const double budget = o.seconds > 0 ? o.seconds : 1e300;
+  auto take_snapshots = [&] {
+    while (next_mark < o.seconds_marks.size() && elapsed() >= o.seconds_marks[next_mark])
+      sum.snapshots.emplace_back(o.seconds_marks[next_mark++], splats);
+  };
+  // The error before any step, at the first scale: an epoch there that ends
+  // worse than this has diverged.
+  double initial_psnr = 0;
+  {
+    const int s0 = stages[0].scale_first;
+    const auto& photos = level(s0);
+    double sq = 0, px = 0;
+    const size_t step_views = std::max<size_t>(1, views.size() / 8);  // eight views, evenly spaced
+    for (size_t i = 0; i < views.size(); i += step_views) {
+      const Intrinsics K = scaled(views[i].intrinsics, s0);
+      sq += forward_backward(project(splats, coeffs, K, views[i].world_from_camera, o.threads), photos[i],
+                             o.background.data(), 1.f, o.threads, nullptr);
+      px += 3.0 * K.width * K.height;
+    }
+    initial_psnr = 10 * std::log10(1.0 / std::max(sq / px, 1e-12));
+    sum.seconds_initial = elapsed();
+    sum.initial_psnr_db = initial_psnr;
+  }
+  std::map<int, double> best_psnr;  // per scale
+  int stage_epochs = 0;             // whole passes over the photos in the stage
+  for (size_t si = 0; si < stages.size(); ++si) {
+    const Stage& st = stages[si];
+    if (si > 0 && stage_epochs > 0) {
+      // Refinement: drop what the photos do not need (nearly transparent, or
+      // under one pixel's weight per pass over the photos: hidden inside),
+      // split the rest, the most used first, up to max_facets.
+      std::vector<std::pair<float, size_t>> keep;
+      for (size_t i = 0; i < splats.size(); ++i)
+        if (splats[i].opacity() >= o.prune_opacity && used[i] >= stage_epochs) keep.push_back({-used[i], i});
+      std::sort(keep.begin(), keep.end());
+      sum.pruned += splats.size() - keep.size();
+      sum.refined_from = keep.size();
+      const size_t splits = std::min(keep.size(), o.max_facets > keep.size() ? (o.max_facets - keep.size()) / 7 : 0);
+      std::vector<Splat> parents, whole;
+      for (size_t k = 0; k < keep.size(); ++k) (k < splits ? parents : whole).push_back(splats[keep[k].second]);
+      sum.split = splits;
+      splats = split(parents);
+      splats.insert(splats.end(), whole.begin(), whole.end());
+    }
+    m.assign(splats.size() * size_t(np), 0.f);
+    v.assign(splats.size() * size_t(np), 0.f);
+    used.assign(splats.size(), 0.f);
+    long stage_steps = 0;
+    stage_epochs = 0;
+    const double stage_start = elapsed();
+    const double stage_end = st.to * budget;
+    const int epoch_cap = o.max_epochs > 0 ? std::max(1, int(std::lround(o.max_epochs * (st.to - st.from)))) : 1 << 30;
+    for (int e = 0; e < epoch_cap; ++e) {
+      const double t_now = elapsed();
+      if (t_now >= stage_end) break;
+      const double frac_epochs = o.max_epochs > 0 ? double(e) / epoch_cap : 0;
+      const double frac_time = (t_now - stage_start) / std::max(1e-9, stage_end - stage_start);
+      const int scale = std::max(frac_epochs, frac_time) < 0.5 ? st.scale_first : st.scale_second;
+      const auto& photos = level(scale);
+      std::shuffle(order.begin(), order.end(), rng);
+      double sq = 0, px = 0;
+      int done = 0;
+      for (int vi : order) {
+        const double t = elapsed();
+        if (t >= stage_end) break;
+        const double frac = std::clamp(std::max(o.max_epochs > 0 ? (e + double(done) / views.size()) / epoch_cap : 0.0,
+                                                (t - stage_start) / std::max(1e-9, stage_end - stage_start)),
+                                       0.0, 1.0);
+        const float lr_scale = float(std::pow(o.lr_final, frac));
+        const SplatView& view = views[size_t(vi)];
+        const Intrinsics K = scaled(view.intrinsics, scale);
+        const ImageU8& target = photos[size_t(vi)];
+        const double t_a = elapsed();
+        const SplatFrame f = project(splats, coeffs, K, view.world_from_camera, o.threads);
+        const double t_b = elapsed();
+        const float inv = 1.f / float(3.0 * K.width * K.height);
+        sq += forward_backward(f, target, o.background.data(), inv, o.threads, &grads);
+        const double t_c = elapsed();
+        sum.seconds_project += t_b - t_a;
+        sum.seconds_raster += t_c - t_b;
+        px += 3.0 * K.width * K.height;
+        ++done;
+        // Adam on the splats this photo sees.
+        ++step, ++stage_steps;
+        const float b1 = 0.9f, b2 = 0.999f, eps = 1e-8f;
+        const float c1 = 1.f - std::pow(b1, float(stage_steps)), c2 = 1.f - std::pow(b2, float(stage_steps));
+        const Eigen::Matrix3f R = view.world_from_camera.rotation().cast<float>();
+        const Eigen::Vector3f eye = view.world_from_camera.translation().cast<float>();
+        parallel_for(int(f.p.size() + 8191) / 8192, o.threads, [&](int chunk) {
+          float basis[kMaxShCoeffs], p[5 + 3 * kMaxShCoeffs], g[5 + 3 * kMaxShCoeffs];
+          for (size_t i = size_t(chunk) * 8192; i < std::min(f.p.size(), size_t(chunk + 1) * 8192); ++i) {
+            Grad gr{};
+            for (const auto& tg : grads) {
+              const Grad& q = tg[i];
+              for (int c = 0; c < 3; ++c) gr.c[c] += q.c[c];
+              gr.o += q.o, gr.sigma += q.sigma, gr.u += q.u, gr.v += q.v, gr.weight += q.weight;
+            }
+            if (gr.weight <= 0) continue;
+            const Projected& pr = f.p[i];
+            Splat& s = splats[pr.id];
+            used[pr.id] += gr.weight;
+            // Chain rule to the parameters.
+            const float z = pr.pc.z();
+            const float dz = -(gr.u * float(K.fx) * pr.pc.x() + gr.v * float(K.fy) * pr.pc.y()) / (z * z) -
+                             gr.sigma * pr.sigma / z;
+            const Eigen::Vector3f dcam(gr.u * float(K.fx) / z, gr.v * float(K.fy) / z, dz);
+            const Eigen::Vector3f dworld = R * dcam;
+            g[0] = dworld.x(), g[1] = dworld.y(), g[2] = dworld.z();
+            g[3] = gr.sigma * pr.sigma;
+            g[4] = gr.o * pr.o * (1.f - pr.o);
+            sh_basis((s.centre() - eye).normalized(), coeffs, basis);
+            for (int k = 0; k < coeffs; ++k)
+              for (int c = 0; c < 3; ++c) g[5 + k * 3 + c] = (pr.clamped >> c & 1) ? 0.f : gr.c[c] * basis[k];
+            gather(s, coeffs, p);
+            float* mi = &m[size_t(pr.id) * np];
+            float* vi2 = &v[size_t(pr.id) * np];
+            for (int k = 0; k < np; ++k) {
+              const float lr = k < 3 ? float(o.lr_offset) * s.voxel : k == 3 ? float(o.lr_sigma)
+                             : k == 4 ? float(o.lr_opacity) : k < 8 ? float(o.lr_color) : float(o.lr_rest);
+              mi[k] = b1 * mi[k] + (1 - b1) * g[k];
+              vi2[k] = b2 * vi2[k] + (1 - b2) * g[k] * g[k];
+              p[k] -= lr * lr_scale * (mi[k] / c1) / (std::sqrt(vi2[k] / c2) + eps);
+            }
+            scatter(p, coeffs, s);
+          }
+        });
+        sum.seconds_update += elapsed() - t_c;
+        if (!std::isfinite(sq)) return fail(ErrorCode::invalid, fmt::format("fit: diverged (error not finite) at step {}", step));
+        take_snapshots();
+        if (o.on_progress) o.on_progress(std::min(1.0, elapsed() / budget));
+      }
+      if (done == 0) break;
+      ++epoch;
+      if (done == int(views.size())) ++stage_epochs;
+      const double mse = sq / std::max(1.0, px);
+      const double psnr = 10 * std::log10(1.0 / std::max(mse, 1e-12));
+      sum.curve.push_back({elapsed(), epoch, scale, psnr, splats.size()});
+      if (scale == 1 || sum.train_psnr_db == 0) sum.train_psnr_db = psnr;
+      // Divergence: worse than the start, or well below the best epoch at
+      // this scale (an epoch's figure mixes the steps' states, so 3 dB).
+      const double floor = scale == stages[0].scale_first && si == 0 ? initial_psnr : -1e9;
+      double& best = best_psnr.try_emplace(scale, -1e9).first->second;
+      best = std::max(best, psnr);
+      if (psnr < floor || psnr < best - 3)
+        return fail(ErrorCode::invalid,
+                    fmt::format("fit: diverged: training PSNR {:.1f} dB at epoch {} (at the start {:.1f} dB, the best "
+                                "at this scale {:.1f} dB)",
+                                psnr, epoch, initial_psnr, best));
+    }
+  }
+  for (const Splat& s : splats)
+    if (!finite(s, coeffs)) return fail(ErrorCode::invalid, "fit: diverged (a facet's parameters are not finite)");
+  // The end: facets nearly transparent, or that no pixel used, are left out.
+  std::vector<Splat> keep;
+  keep.reserve(splats.size());
+  for (size_t i = 0; i < splats.size(); ++i)
+    if (splats[i].opacity() >= o.prune_opacity && used[i] > 0.f) keep.push_back(splats[i]);
+  sum.pruned += splats.size() - keep.size();
+  if (keep.empty()) return fail(ErrorCode::invalid, "fit: no facet left (every one transparent or unused by the photos)");
+  sum.final_count = keep.size();
+  sum.epochs = epoch;
+  sum.steps = step;
+  sum.seconds = elapsed();
+  splats_io = std::move(keep);
+  return sum;
+}
+
+}  // namespace s2r

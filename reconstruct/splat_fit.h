@@ -1,0 +1,130 @@
+// Fitted billboards: each voxel-anchored facet gets an opacity, a footprint,
+// an offset within its voxel and a view-dependent colour (real spherical
+// harmonics of degree 0-2), fitted to the training photos by differentiable
+// rasterization, as Kerbl, Kopanas, Leimkuehler and Drettakis fit their
+// splats ("3D Gaussian Splatting for Real-Time Radiance Field Rendering",
+// 2023), coarse to fine over a sparse voxel grid as Fridovich-Keil, Yu et al.
+// do without a network ("Plenoxels: Radiance Fields without Neural Networks",
+// 2022).
+//
+// Image formation (the same in the fit and in render/'s splat pass): facet i
+// is a camera-facing billboard through its centre X_i whose footprint on
+// screen is an isotropic Gaussian, sigma_px = sigma_i f / z_i (f = fx, z_i
+// the centre's depth), centred on the projection of X_i through the camera's
+// lens model, cut at 3 sigma. Its alpha at a pixel is min(0.99, o_i g),
+// g the Gaussian; alpha under 1/255 draws nothing. The facets are composited
+// front to back in order of z_i over the background b:
+//     C = sum_i c_i alpha_i T_i + T_N b,  T_i = prod_{j<i} (1 - alpha_j),
+// and a pixel stops once T would fall under 1e-4. c_i = max(0, 0.5 + SH(d)),
+// d the unit direction from the camera's centre to X_i.
+//
+// The fit minimises the mean squared error of C against each training photo
+// (composited on b where it has a matte) with Adam, one photo per step, on
+// an image pyramid (coarse levels first). Halfway the grid is refined: facets
+// whose opacity stays low or that no pixel uses are dropped and every other
+// one splits into its eight half-size children. Only training photos are
+// read; the fit stops with an error, and writes nothing, when it diverges.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include "core/camera_model.h"
+#include "core/image.h"
+#include "core/result.h"
+
+namespace s2r {
+
+inline constexpr int kMaxShCoeffs = 9;  // degree 2
+
+// One fitted facet (the model's splats.bin record is this, 60 + 4 * 27 bytes).
+struct Splat {
+  Eigen::Vector3f anchor = Eigen::Vector3f::Zero();  // voxel centre
+  Eigen::Vector3f offset = Eigen::Vector3f::Zero();  // |offset|_inf <= voxel / 2
+  float voxel = 0;          // w
+  float log_sigma = 0;      // footprint sigma (metres) = exp(log_sigma)
+  float opacity_logit = 0;  // opacity = sigmoid
+  std::array<float, 3 * kMaxShCoeffs> sh{};  // per channel, coefficient-major: sh[k * 3 + c]
+  Eigen::Vector3f centre() const { return anchor + offset; }
+  float sigma() const { return std::exp(log_sigma); }
+  float opacity() const { return 1.f / (1.f + std::exp(-opacity_logit)); }
+};
+
+// Real spherical-harmonic basis (the order and signs 3DGS uses), `n` = 1, 4 or 9.
+void sh_basis(const Eigen::Vector3f& dir, int n, float* out);
+// c = max(0, 0.5 + sum_k sh[k] basis[k]) per channel.
+Eigen::Vector3f splat_color(const Splat& s, int coeffs, const Eigen::Vector3f& dir);
+inline int sh_coeffs(int degree) { return (degree + 1) * (degree + 1); }
+
+struct SplatView {
+  Intrinsics intrinsics;
+  Eigen::Isometry3d world_from_camera = Eigen::Isometry3d::Identity();
+  const ImageU8* photo = nullptr;  // RGB (or more channels, the first three used), composited on the background
+};
+
+// The image formation above, on the CPU: RGB floats in [0, 1], W x H x 3;
+// `alpha_out` (optional) 1 - T_N per pixel.
+ImageF render_splats(const std::vector<Splat>& splats, int coeffs, const Intrinsics& K,
+                     const Eigen::Isometry3d& world_from_camera, const std::array<float, 3>& background,
+                     ImageF* alpha_out = nullptr, int threads = 0);
+
+struct SplatFitOptions {
+  double seconds = 600;         // wall-clock budget of the whole fit
+  int max_epochs = 0;           // > 0: also stop after this many passes over the photos
+  int sh_degree = 1;            // 0..2
+  bool refine = true;           // split the grid once, at refine_at of the budget
+  double refine_at = 0.35;
+  double sigma_init = 0.6;      // footprint sigma / w at the start
+  double opacity_init = 0.3;
+  double lr_color = 0.01, lr_rest = 0.0005, lr_opacity = 0.05, lr_sigma = 0.01, lr_offset = 0.02;  // offset: per w
+  double lr_final = 0.1;        // the rates fall exponentially to this fraction at each stage's end
+  double prune_opacity = 0.02;  // at refinement and at the end
+  size_t max_facets = 800000;   // refinement splits the most used facets up to this many
+  std::array<float, 3> background{0, 0, 0};
+  int threads = 0;
+  std::vector<double> seconds_marks;  // snapshots of the facets at these seconds (error against run time)
+  std::function<void(double fraction)> on_progress;
+
+  Status validate() const;
+};
+
+struct SplatFitPoint {
+  double seconds = 0;
+  int epoch = 0;
+  int scale = 1;           // the pyramid level's downscale factor
+  double train_psnr_db = 0;  // the epoch's photos, at that level
+  size_t splats = 0;
+};
+
+struct SplatFitSummary {
+  std::vector<SplatFitPoint> curve;  // one point per epoch
+  size_t initial = 0, refined_from = 0, split = 0, pruned = 0, final_count = 0;
+  int epochs = 0;
+  long steps = 0;
+  double seconds = 0;
+  // Where the seconds went: the error before the first step, projecting and
+  // sorting, compositing forward and back, the optimiser's updates.
+  double seconds_initial = 0, seconds_project = 0, seconds_raster = 0, seconds_update = 0;
+  double initial_psnr_db = 0; // the photos at the first (coarsest) scale before any step
+  double train_psnr_db = 0;   // the last full-resolution epoch (or the last epoch)
+  std::vector<std::pair<double, std::vector<Splat>>> snapshots;  // at seconds_marks
+};
+
+// Fits `splats` (anchors, voxel sizes and initial colours set by the caller;
+// see init_splats) to `views`. On error (divergence, bad options) `splats` is
+// left as it was.
+Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats, const std::vector<SplatView>& views,
+                                   const SplatFitOptions& options);
+
+// Facets at `anchors` (voxel w each), footprint and opacity from `options`,
+// the colour's constant term the mean of the photos' pixels they project to.
+std::vector<Splat> init_splats(const std::vector<Eigen::Vector3f>& anchors, float voxel,
+                               const std::vector<SplatView>& views, const SplatFitOptions& options);
+
+}  // namespace s2r

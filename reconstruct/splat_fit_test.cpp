@@ -1,0 +1,169 @@
+#include "reconstruct/splat_fit.h"
+
+#include <cmath>
+
+#include <gtest/gtest.h>
+
+#include "core/image_metrics.h"
+
+namespace s2r {
+namespace {
+
+Intrinsics small_camera() {
+  Intrinsics K;
+  K.width = 160, K.height = 120;
+  K.fx = K.fy = 180, K.cx = 79.5, K.cy = 59.5;
+  return K;
+}
+
+// A camera on a ring around the origin, looking at it (OpenCV axes).
+Eigen::Isometry3d ring_camera(double azimuth_deg, double elevation_deg, double distance) {
+  const double a = azimuth_deg * M_PI / 180, e = elevation_deg * M_PI / 180;
+  const Eigen::Vector3d eye(distance * std::cos(e) * std::cos(a), distance * std::cos(e) * std::sin(a), distance * std::sin(e));
+  const Eigen::Vector3d z = (-eye).normalized();
+  const Eigen::Vector3d x = z.cross(Eigen::Vector3d::UnitZ()).normalized();
+  const Eigen::Vector3d y = z.cross(x);
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() << x, y, z;
+  T.translation() = eye;
+  return T;
+}
+
+// The truth: a sphere's shell of opaque splats, coloured by position.
+std::vector<Splat> truth_sphere() {
+  std::vector<Splat> out;
+  const double r = 0.3;
+  for (int i = 0; i < 3000; ++i) {
+    // Fibonacci sphere.
+    const double y = 1 - 2 * (i + 0.5) / 3000, rad = std::sqrt(1 - y * y), phi = i * 2.399963229728653;
+    Splat s;
+    s.anchor = Eigen::Vector3f(float(r * rad * std::cos(phi)), float(r * y), float(r * rad * std::sin(phi)));
+    s.voxel = 0.02f;
+    s.log_sigma = std::log(0.01f);
+    s.opacity_logit = 3.f;
+    const Eigen::Vector3f c(0.5f + 0.4f * std::sin(12 * s.anchor.x()), 0.5f + 0.4f * std::cos(9 * s.anchor.y()),
+                            0.5f + 0.4f * std::sin(7 * s.anchor.z() + 1));
+    for (int ch = 0; ch < 3; ++ch) s.sh[size_t(ch)] = (c[ch] - 0.5f) / 0.28209479177387814f;
+    out.push_back(s);
+  }
+  return out;
+}
+
+ImageU8 to_u8(const ImageF& im) {
+  ImageU8 out(im.width, im.height, 3);
+  for (size_t i = 0; i < im.data.size(); ++i) out.data[i] = uint8_t(std::lround(std::clamp(im.data[i], 0.f, 1.f) * 255));
+  return out;
+}
+
+struct Scene {
+  std::vector<ImageU8> photos;
+  std::vector<SplatView> views;
+};
+
+Scene photos_of(const std::vector<Splat>& truth, const std::vector<Eigen::Isometry3d>& poses, const std::array<float, 3>& bg) {
+  Scene s;
+  s.photos.reserve(poses.size());
+  for (const auto& T : poses) s.photos.push_back(to_u8(render_splats(truth, 1, small_camera(), T, bg)));
+  for (size_t i = 0; i < poses.size(); ++i) s.views.push_back({small_camera(), poses[i], &s.photos[i]});
+  return s;
+}
+
+std::vector<Eigen::Vector3f> ball_grid(double radius, double w) {
+  std::vector<Eigen::Vector3f> out;
+  const int n = int(std::ceil(radius / w));
+  for (int i = -n; i <= n; ++i)
+    for (int j = -n; j <= n; ++j)
+      for (int k = -n; k <= n; ++k) {
+        const Eigen::Vector3f p(float(i * w), float(j * w), float(k * w));
+        if (p.norm() <= radius) out.push_back(p);
+      }
+  return out;
+}
+
+TEST(SplatFit, RenderIsTheCompositingFormula) {
+  // One splat, opacity 0.5, on white: its centre pixel is 0.5 c + 0.5 white.
+  Splat s;
+  s.voxel = 0.02f;
+  s.log_sigma = std::log(0.01f);
+  s.opacity_logit = 0.f;
+  s.sh[0] = s.sh[1] = s.sh[2] = -0.5f / 0.28209479177387814f;  // black
+  const Eigen::Isometry3d T = ring_camera(0, 0, 1.0);
+  ImageF alpha;
+  const ImageF im = render_splats({s}, 1, small_camera(), T, {1, 1, 1}, &alpha);
+  // The origin projects to the principal point (79.5, 59.5): the four pixels
+  // around it are 0.5 px away each way, g = exp(-0.25 / (2 sigma_px^2)).
+  const float sigma_px = 0.01f * 180.f / 1.f;
+  const float a = 0.5f * std::exp(-0.5f / (2 * sigma_px * sigma_px));
+  EXPECT_NEAR(im.at(79, 59, 0), 1.f - a, 1e-5);
+  EXPECT_NEAR(alpha.at(80, 60), a, 1e-5);
+  EXPECT_FLOAT_EQ(im.at(0, 0, 1), 1.f);  // far outside 3 sigma: the background
+}
+
+TEST(SplatFit, FitsASphereFromItsPhotosAndDrawsUnseenViews) {
+  const auto truth = truth_sphere();
+  const std::array<float, 3> bg{1, 1, 1};
+  std::vector<Eigen::Isometry3d> train, held;
+  for (int i = 0; i < 16; ++i) train.push_back(ring_camera(i * 22.5, i % 2 ? 25 : -15, 1.4));
+  for (int i = 0; i < 4; ++i) held.push_back(ring_camera(11.25 + i * 90, 5, 1.5));
+  const Scene tr = photos_of(truth, train, bg), ho = photos_of(truth, held, bg);
+
+  SplatFitOptions o;
+  o.background = bg;
+  o.seconds = 120;
+  o.max_epochs = 16;
+  o.sh_degree = 0;
+  auto splats = init_splats(ball_grid(0.34, 0.04), 0.04f, tr.views, o);
+  const size_t initial = splats.size();
+  auto fit = fit_splats(splats, tr.views, o);
+  ASSERT_TRUE(fit) << fit.error().message;
+  EXPECT_EQ(fit->initial, initial);
+  EXPECT_GT(fit->refined_from, 0u);
+  EXPECT_EQ(fit->final_count, splats.size());
+  ASSERT_FALSE(fit->curve.empty());
+  // Training error falls: the last epoch beats the first by a wide margin.
+  EXPECT_GT(fit->curve.back().train_psnr_db, fit->curve.front().train_psnr_db + 5);
+  EXPECT_GT(fit->train_psnr_db, 28.0);
+  double held_psnr = 0;
+  for (size_t i = 0; i < held.size(); ++i) {
+    const ImageU8 drawn = to_u8(render_splats(splats, 1, small_camera(), held[i], bg));
+    held_psnr += *psnr(drawn, ho.photos[i]) / double(held.size());
+  }
+  std::printf("train %.2f dB, held-out %.2f dB, %zu -> %zu facets, %d epochs, %.1f s\n", fit->train_psnr_db, held_psnr,
+              initial, splats.size(), fit->epochs, fit->seconds);
+  EXPECT_GT(held_psnr, 26.0);
+}
+
+TEST(SplatFit, DivergenceIsAnErrorAndLeavesTheFacets) {
+  const auto truth = truth_sphere();
+  const std::array<float, 3> bg{0, 0, 0};
+  std::vector<Eigen::Isometry3d> train;
+  for (int i = 0; i < 8; ++i) train.push_back(ring_camera(i * 45, 10, 1.4));
+  const Scene tr = photos_of(truth, train, bg);
+  SplatFitOptions o;
+  o.background = bg;
+  o.max_epochs = 20;
+  o.refine = false;
+  o.lr_color = 1e4;  // absurd steps
+  o.lr_opacity = 1e4;
+  auto splats = init_splats(ball_grid(0.34, 0.04), 0.04f, tr.views, o);
+  const auto before = splats;
+  auto fit = fit_splats(splats, tr.views, o);
+  ASSERT_FALSE(fit);
+  EXPECT_NE(fit.error().message.find("diverged"), std::string::npos) << fit.error().message;
+  ASSERT_EQ(splats.size(), before.size());
+  EXPECT_EQ(splats[0].sh, before[0].sh);
+}
+
+TEST(SplatFit, OptionsValidate) {
+  SplatFitOptions o;
+  o.sh_degree = 3;
+  EXPECT_FALSE(o.validate());
+  o = {};
+  o.background = {2, 0, 0};
+  EXPECT_FALSE(o.validate());
+  std::vector<Splat> none;
+  EXPECT_FALSE(fit_splats(none, {}, SplatFitOptions{}));
+}
+
+}  // namespace
+}  // namespace s2r
