@@ -28,6 +28,12 @@ void add_bench(CLI::App& app, Chosen& chosen) {
   sub->add_option("--size", a->size, "raytrace: pixels per CAVE screen side (the paper: 256; 512 steadies the timings)")->capture_default_str();
   sub->add_option("--lego-views", a->lego_views, "views: lego val views evaluated, evenly spaced (100 = all)")
       ->capture_default_str();
+  sub->add_option("--fit", a->fit_lego, "views: seconds of lego's fit (its PSNR at 1, 5, 10, 15, 20 minutes on the way, fit.png); 0: no fit")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  sub->add_option("--fit-others", a->fit_others, "views: seconds of the other scenes' fits; 0: no fit")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
   sub->add_option("--voxels", a->voxels, "envmap: voxels checked against brute force at the default setting (a tenth elsewhere)")
       ->capture_default_str();
   sub->callback([a, &chosen] { chosen = a; });

@@ -28,6 +28,8 @@ namespace {
 // One scene's models (one, or one per left-out view) and their evaluations.
 struct SceneRun {
   std::string scene;
+  double fit_seconds = 0;    // each model's fit budget
+  std::vector<std::pair<double, EvalSummary>> snapshots;  // lego: the fit at its marks, evaluated
   double build_seconds = 0;  // every model's reconstruct, summed
   double model_bytes = 0;    // per model, the mean
   std::vector<EvalSummary> evals;
@@ -38,7 +40,8 @@ double folder_bytes(const fs::path& dir) {
   std::error_code ec;
   double bytes = 0;
   for (fs::recursive_directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec))
-    if (it->is_regular_file(ec)) bytes += double(it->file_size(ec));
+    if (it->is_regular_file(ec) && !it->path().filename().string().starts_with("splats_"))  // the fit's snapshots
+      bytes += double(it->file_size(ec));
   return bytes;
 }
 
@@ -52,6 +55,7 @@ std::vector<int> frames_every(int count, int step) {
 // billboards and the textured patch mesh.
 Status build_and_eval(SceneRun& run, ReconstructJob job, const FrameSource& source, const std::vector<int>& frames,
                       const fs::path& eval_out) {
+  job.fit_seconds = run.fit_seconds;
   auto built = run_reconstruct_job(job);
   if (!built) return std::unexpected(with_context(built.error(), run.scene + ": reconstruct"));
   run.build_seconds += built->seconds;
@@ -61,7 +65,7 @@ Status build_and_eval(SceneRun& run, ReconstructJob job, const FrameSource& sour
   e.source = source;
   e.frames = frames;
   e.out = eval_out;
-  e.only = {"billboards", "mesh"};
+  e.only = {"fitted", "billboards", "mesh"};
   auto ev = run_eval_job(e);
   if (!ev) return std::unexpected(with_context(ev.error(), run.scene + ": eval"));
   std::fprintf(stderr, "%s: %s\n", run.scene.c_str(), ev->brief().substr(0, 200).c_str());
@@ -69,8 +73,8 @@ Status build_and_eval(SceneRun& run, ReconstructJob job, const FrameSource& sour
   return {};
 }
 
-Result<SceneRun> lego(const fs::path& out, int views) {
-  SceneRun run{"lego"};
+Result<SceneRun> lego(const fs::path& out, int views, double fit) {
+  SceneRun run{"lego", fit};
   const fs::path data = data_dir() / "nerf_synthetic_lego";
   if (!fs::exists(data / "transforms_train.json")) return fail(ErrorCode::not_found, "no lego in " + data.string());
   for (const char* split : {"train", "val"}) {
@@ -84,13 +88,28 @@ Result<SceneRun> lego(const fs::path& out, int views) {
   job.out = out / "model";
   job.geometry = Geometry::hull;
   run.size = "800x800";
-  if (auto st = build_and_eval(run, job, {out / "val"}, frames_every(100, 100 / std::clamp(views, 1, 100)), out / "eval"); !st)
-    return std::unexpected(st.error());
+  for (double m : {60.0, 300.0, 600.0, 900.0, 1200.0})
+    if (m < fit) job.fit_snapshots.push_back(m);
+  const auto frames = frames_every(100, 100 / std::clamp(views, 1, 100));
+  if (auto st = build_and_eval(run, job, {out / "val"}, frames, out / "eval"); !st) return std::unexpected(st.error());
+  // The fit as it stood at each mark: PSNR against the fit's seconds.
+  for (double m : job.fit_snapshots) {
+    EvalJob e;
+    e.model = job.out;
+    e.source = {out / "val"};
+    e.frames = frames;
+    e.out = out / fmt::format("eval_fit_{:.0f}s", m);
+    e.only = {"fitted"};
+    e.splats = job.out / fmt::format("splats_{:.0f}s.bin", m);
+    auto ev = run_eval_job(e);
+    if (!ev) return std::unexpected(with_context(ev.error(), "lego: the fit at " + std::to_string(int(m)) + " s"));
+    run.snapshots.emplace_back(m, std::move(*ev));
+  }
   return run;
 }
 
-Result<SceneRun> rig(const fs::path& out, const std::string& scene) {
-  SceneRun run{"rig " + scene};
+Result<SceneRun> rig(const fs::path& out, const std::string& scene, double fit) {
+  SceneRun run{"rig " + scene, fit};
   SynthOptions so;
   so.scene = scene;
   so.views = 24;
@@ -106,8 +125,8 @@ Result<SceneRun> rig(const fs::path& out, const std::string& scene) {
   return run;
 }
 
-Result<SceneRun> dino(const fs::path& out) {
-  SceneRun run{"dino ring"};
+Result<SceneRun> dino(const fs::path& out, double fit) {
+  SceneRun run{"dino ring", fit};
   fs::remove_all(out / "session");
   if (auto r = import_dataset("middlebury", data_dir() / "middlebury_dino_ring", out / "session", {}); !r)
     return std::unexpected(r.error());
@@ -124,8 +143,8 @@ Result<SceneRun> dino(const fs::path& out) {
   return run;
 }
 
-Result<SceneRun> bear(const fs::path& out) {
-  SceneRun run{"bear"};
+Result<SceneRun> bear(const fs::path& out, double fit) {
+  SceneRun run{"bear", fit};
   const fs::path session = out / "session", cal = out / "calibration.json", reg = out / "register";
   fs::remove_all(session);
   if (auto r = import_dataset("realsense", data_dir() / "realsense_d435_bear" / "bear", session, {}); !r)
@@ -170,18 +189,20 @@ std::optional<Pooled> pooled(const SceneRun& run, const std::string& method) {
 
 }  // namespace
 
-int bench_views(const fs::path& out, int lego_views) {
+int bench_views(const fs::path& out, int lego_views, double fit_lego, double fit_others) {
   Stopwatch total;
   Report rep;
   rep.stage = "bench.views";
   std::error_code ec;
   fs::create_directories(out, ec);
   std::vector<std::pair<std::string, std::function<Result<SceneRun>()>>> scenes = {
-      {"lego", [&] { return lego(out / "lego", lego_views); }},
-      {"bunny", [&] { return rig(out / "bunny", "bunny"); }},
-      {"fuzzy", [&] { return rig(out / "fuzzy", "fuzzy"); }},
-      {"dino", [&] { return dino(out / "dino"); }},
-      {"bear", [&] { return bear(out / "bear"); }}};
+      {"lego", [&] { return lego(out / "lego", lego_views, fit_lego); }},
+      {"bunny", [&] { return rig(out / "bunny", "bunny", fit_others); }},
+      {"fuzzy", [&] { return rig(out / "fuzzy", "fuzzy", fit_others); }},
+      {"dino", [&] { return dino(out / "dino", fit_others); }},
+      {"bear", [&] { return bear(out / "bear", fit_others); }}};
+  SweepTable fit_curve;  // lego: held-out PSNR of the fit against its seconds
+  fit_curve.columns = {"fit_seconds", "full_psnr_db", "full_ssim"};
   SweepTable t;
   t.columns = {"build_seconds", "full_psnr_db", "full_ssim", "psnr_db_masked", "ssim_masked", "frame_ms", "model_mib", "views"};
   for (const auto& [name, make] : scenes) {
@@ -192,7 +213,13 @@ int bench_views(const fs::path& out, int lego_views) {
       continue;
     }
     const double models = double(std::max<size_t>(1, run->evals.size()));
-    for (const std::string method : {"billboards", "mesh"}) {
+    for (const auto& [m, ev] : run->snapshots)
+      if (const EvalMethodFigures* f = ev.method("fitted")) {
+        fit_curve.rows.push_back({m, f->full_psnr_db, f->full_ssim});
+        rep.errors[fmt::format("full_psnr_db_{}_fitted_at_{:.0f}s", name, m)] = f->full_psnr_db;
+      }
+    if (auto p = pooled(*run, "fitted"); p && !run->snapshots.empty()) fit_curve.rows.push_back({run->fit_seconds, p->full_psnr, p->full_ssim});
+    for (const std::string method : {"fitted", "billboards", "mesh"}) {
       auto p = pooled(*run, method);
       if (!p) continue;
       t.row_labels.push_back(run->scene + " " + run->size + ": " + method);
@@ -214,7 +241,15 @@ int bench_views(const fs::path& out, int lego_views) {
   PlotSpec spec{"held-out full-image PSNR against build seconds (each point a scene and method)", "build seconds",
                 "PSNR (dB)", "build_seconds", {"full_psnr_db"}, true, true};
   if (auto st = plot_png(t, spec, out / "views.png"); !st) rep.warnings.push_back(st.error().message);
+  if (!fit_curve.rows.empty()) {
+    if (auto st = fit_curve.write_csv(out / "fit.csv"); !st) return error(st.error().message);
+    PlotSpec fs{"lego val: fitted billboards' full-image PSNR against the fit's seconds", "fit seconds", "PSNR (dB)",
+                "fit_seconds", {"full_psnr_db"}, false, false};
+    if (auto st = plot_png(fit_curve, fs, out / "fit.png"); !st) rep.warnings.push_back(st.error().message);
+  }
   rep.params["lego_views"] = double(lego_views);
+  rep.params["fit_seconds_lego"] = fit_lego;
+  rep.params["fit_seconds_others"] = fit_others;
   rep.seconds = total.seconds();
   return finish(rep, out / "report.json");
 }

@@ -32,6 +32,19 @@ constexpr float kC2[5] = {1.0925484305920792f, -1.0925484305920792f, 0.315391565
 
 float logit(float p) { return std::log(p / (1.f - p)); }
 
+// exp(x) for the footprints' x in [-4.5, 0]: 2^t as 2^floor(t) times a
+// degree-6 polynomial of the fraction (relative error under 2e-5; the
+// compositing rounds alpha far coarser).
+inline float fast_exp(float x) {
+  const float t = std::max(x, -80.f) * 1.4426950408889634f;
+  const float fi = std::floor(t), f = t - fi;
+  const float p = 1.f + f * (0.69314718f + f * (0.24022651f + f * (0.05550411f + f * (0.00961813f + f * (0.00133336f + f * 0.00015404f)))));
+  const uint32_t bits = uint32_t(int32_t(fi) + 127) << 23;
+  float scale;
+  std::memcpy(&scale, &bits, 4);
+  return p * scale;
+}
+
 // One splat as one image sees it.
 struct Projected {
   float u, v;         // centre, pixels
@@ -226,7 +239,7 @@ void tile_forward(const SplatFrame& f, int tile, const float* bg, TileState& st)
         const float dx = float(x) - p.u;
         const float d2 = dx * dx + dy * dy;
         if (d2 > p.r2max) continue;
-        const float alpha = std::min(kAlphaMax, p.o * std::exp(-d2 * p.inv2s2));
+        const float alpha = std::min(kAlphaMax, p.o * fast_exp(-d2 * p.inv2s2));
         if (alpha < kAlphaMin) continue;
         const float next = st.T[i] * (1.f - alpha);
         if (next < kStopT) {
@@ -293,7 +306,7 @@ double forward_backward(const SplatFrame& f, const ImageU8& target, const float*
           const float dx = float(x) - p.u;
           const float d2 = dx * dx + dy * dy;
           if (d2 > p.r2max) continue;
-          const float g = std::exp(-d2 * p.inv2s2);
+          const float g = fast_exp(-d2 * p.inv2s2);
           const float raw = p.o * g;
           const float alpha = std::min(kAlphaMax, raw);
           if (alpha < kAlphaMin) continue;
@@ -375,6 +388,35 @@ std::vector<Splat> split(const std::vector<Splat>& in) {
   return out;
 }
 
+// Facets of one grid merged into cells 2^levels voxels wide: a cell holds a
+// facet where any of its voxels did, its colour their mean. The cells'
+// children under split() are the original voxels again.
+std::vector<Splat> merge_cells(const std::vector<Splat>& in, int levels, const SplatFitOptions& o) {
+  const float w = in.front().voxel;
+  const int n = 1 << levels;
+  std::map<std::array<int, 3>, std::pair<Splat, int>> cells;
+  for (const Splat& s : in) {
+    std::array<int, 3> c;
+    for (int a = 0; a < 3; ++a) c[size_t(a)] = int(std::floor(std::lround(s.anchor[a] / w) / double(n)));
+    auto [it, fresh] = cells.try_emplace(c, s, 0);
+    if (!fresh)
+      for (int k = 0; k < 3; ++k) it->second.first.sh[size_t(k)] += s.sh[size_t(k)];
+    ++it->second.second;
+  }
+  std::vector<Splat> out;
+  out.reserve(cells.size());
+  for (auto& [c, sc] : cells) {
+    Splat s = sc.first;
+    for (int k = 0; k < 3; ++k) s.sh[size_t(k)] /= float(sc.second);
+    s.voxel = w * float(n);
+    for (int a = 0; a < 3; ++a) s.anchor[a] = (float(c[size_t(a)] * n) + 0.5f * float(n - 1)) * w;
+    s.offset.setZero();
+    s.log_sigma = std::log(float(o.sigma_init) * s.voxel);
+    out.push_back(s);
+  }
+  return out;
+}
+
 bool finite(const Splat& s, int coeffs) {
   if (!s.offset.allFinite() || !std::isfinite(s.log_sigma) || !std::isfinite(s.opacity_logit)) return false;
   for (int k = 0; k < 3 * coeffs; ++k)
@@ -432,7 +474,7 @@ Status SplatFitOptions::validate() const {
   for (double lr : {lr_color, lr_rest, lr_opacity, lr_sigma, lr_offset})
     if (!(lr >= 0) || !std::isfinite(lr)) return fail(ErrorCode::invalid, "fit: learning rates must be >= 0 and finite");
   if (!(lr_final > 0 && lr_final <= 1)) return fail(ErrorCode::invalid, "fit: lr_final: must be in (0, 1]");
-  if (!(refine_at > 0 && refine_at < 1)) return fail(ErrorCode::invalid, "fit: refine_at: must be in (0, 1)");
+  if (coarse_levels < 0 || coarse_levels > 4) return fail(ErrorCode::invalid, "fit: coarse_levels: must be in 0..4");
   for (float b : background)
     if (!(b >= 0 && b <= 1)) return fail(ErrorCode::invalid, "fit: background: each channel must be in [0, 1]");
   return {};
@@ -490,17 +532,41 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
     parallel_for(int(views.size()), o.threads, [&](int i) { l[size_t(i)] = downscale(*views[size_t(i)].photo, s); });
     return pyramid.emplace(s, std::move(l)).first->second;
   };
-  // Stages: before the grid's refinement and after it. Each stage's image
-  // scale: coarse for its first half.
-  const int max_dim = std::max(views[0].intrinsics.width, views[0].intrinsics.height);
-  const int coarse = max_dim >= 1200 ? 4 : max_dim >= 300 ? 2 : 1;
+  // Stages, coarse to fine: the grid starts 2^coarse_levels times coarser
+  // than the facets given (their cells merged), each stage ends by halving
+  // it (refine: once more below the given size). A stage's photos are at
+  // the scale where its voxel spans about 1.5 pixels or more, the second
+  // half of the stage at twice that resolution.
+  const float w_in = splats.front().voxel;
+  if (o.coarse_levels > 0) splats = merge_cells(splats, o.coarse_levels, o);
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+  for (const Splat& p : splats) centroid += p.anchor.cast<double>();
+  centroid /= double(splats.size());
+  std::vector<double> px_per_m;
+  for (const auto& vw : views)
+    px_per_m.push_back(vw.intrinsics.fx / std::max(1e-9, (vw.world_from_camera.inverse() * centroid).z()));
+  std::nth_element(px_per_m.begin(), px_per_m.begin() + std::ptrdiff_t(px_per_m.size() / 2), px_per_m.end());
+  const double focal_per_m = px_per_m[px_per_m.size() / 2];
   struct Stage {
     double from, to;  // fractions of the budget
     int scale_first, scale_second;
   };
   std::vector<Stage> stages;
-  if (o.refine) stages = {{0, o.refine_at, coarse * 2, coarse}, {o.refine_at, 1, coarse, 1}};
-  else stages = {{0, 1, coarse, 1}};
+  {
+    const int n = o.coarse_levels + 1 + (o.refine ? 1 : 0);
+    double total = 0, weight = 1;
+    std::vector<double> weights;
+    for (int k = 0; k < n; ++k) weights.push_back(weight), total += weight, weight *= 1.5;
+    double at = 0;
+    for (int k = 0; k < n; ++k) {
+      const double w = w_in * std::ldexp(1.0, o.coarse_levels - k);
+      int scale = 1;
+      while (scale < 8 && w * focal_per_m / (2 * scale) >= 1.5) scale *= 2;
+      const double to = k + 1 == n ? 1.0 : at + weights[size_t(k)] / total;
+      stages.push_back({at, to, scale, k + 1 == n ? 1 : std::max(1, scale / 2)});
+      at = to;
+    }
+  }
   std::mt19937 rng(7);
   std::vector<float> m, v, used;
   long step = 0;
@@ -546,7 +612,9 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
       std::sort(keep.begin(), keep.end());
       sum.pruned += splats.size() - keep.size();
       sum.refined_from = keep.size();
-      const size_t splits = std::min(keep.size(), o.max_facets > keep.size() ? (o.max_facets - keep.size()) / 7 : 0);
+      // Before the last stage, half the cap: the finest grid gets the facets.
+      const size_t cap = si + 1 == stages.size() ? o.max_facets : o.max_facets / 2;
+      const size_t splits = std::min(keep.size(), cap > keep.size() ? (cap - keep.size()) / 7 : 0);
       std::vector<Splat> parents, whole;
       for (size_t k = 0; k < keep.size(); ++k) (k < splits ? parents : whole).push_back(splats[keep[k].second]);
       sum.split = splits;

@@ -20,9 +20,11 @@
 //
 // The fit minimises the mean squared error of C against each training photo
 // (composited on b where it has a matte) with Adam, one photo per step, on
-// an image pyramid (coarse levels first). Halfway the grid is refined: facets
-// whose opacity stays low or that no pixel uses are dropped and every other
-// one splits into its eight half-size children. Only training photos are
+// an image pyramid, coarse to fine over the grid as well: the fit starts on
+// cells 2^coarse_levels voxels wide, and at the end of each stage facets
+// whose opacity stays low or that the photos hardly use are dropped and the
+// rest (the most used first, up to max_facets) split into their eight
+// half-size children. Only training photos are
 // read; the fit stops with an error, and writes nothing, when it diverges.
 #pragma once
 
@@ -78,14 +80,14 @@ struct SplatFitOptions {
   double seconds = 600;         // wall-clock budget of the whole fit
   int max_epochs = 0;           // > 0: also stop after this many passes over the photos
   int sh_degree = 1;            // 0..2
-  bool refine = true;           // split the grid once, at refine_at of the budget
-  double refine_at = 0.35;
+  int coarse_levels = 1;        // start this many halvings coarser than the facets given (their cells merged)
+  bool refine = true;           // end one halving finer than the facets given
   double sigma_init = 0.6;      // footprint sigma / w at the start
   double opacity_init = 0.3;
   double lr_color = 0.01, lr_rest = 0.0005, lr_opacity = 0.05, lr_sigma = 0.01, lr_offset = 0.02;  // offset: per w
   double lr_final = 0.1;        // the rates fall exponentially to this fraction at each stage's end
   double prune_opacity = 0.02;  // at refinement and at the end
-  size_t max_facets = 800000;   // refinement splits the most used facets up to this many
+  size_t max_facets = 600000;   // refinement splits the most used facets up to this many (half that before the last stage)
   std::array<float, 3> background{0, 0, 0};
   int threads = 0;
   std::vector<double> seconds_marks;  // snapshots of the facets at these seconds (error against run time)
