@@ -138,6 +138,7 @@ struct BenchArgs {
   int repeats = 3, size = 512, voxels = 10000;
   int lego_views = 100;  // views: how many of lego's 100 val views (evenly spaced)
   double fit_lego = 1500, fit_others = 300;  // views: seconds of the fit (0: none)
+  std::vector<std::string> scenes;           // views: the scenes to run (empty: all)
 };
 struct SummaryArgs {
   std::string folder, title = "scan2render run";

@@ -31,6 +31,9 @@ void add_bench(CLI::App& app, Chosen& chosen) {
   sub->add_option("--fit", a->fit_lego, "views: seconds of lego's fit (its PSNR at 1, 5, 10, 15, 20 minutes on the way, fit.png); 0: no fit")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
+  sub->add_option("--scenes", a->scenes, "views: the scenes to run, of lego, bunny, fuzzy, dino, bear (default all)")
+      ->delimiter(',')
+      ->check(CLI::IsMember({"lego", "bunny", "fuzzy", "dino", "bear"}));
   sub->add_option("--fit-others", a->fit_others, "views: seconds of the other scenes' fits; 0: no fit")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();

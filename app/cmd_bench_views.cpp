@@ -189,7 +189,8 @@ std::optional<Pooled> pooled(const SceneRun& run, const std::string& method) {
 
 }  // namespace
 
-int bench_views(const fs::path& out, int lego_views, double fit_lego, double fit_others) {
+int bench_views(const fs::path& out, int lego_views, double fit_lego, double fit_others,
+                const std::vector<std::string>& only) {
   Stopwatch total;
   Report rep;
   rep.stage = "bench.views";
@@ -206,6 +207,10 @@ int bench_views(const fs::path& out, int lego_views, double fit_lego, double fit
   SweepTable t;
   t.columns = {"build_seconds", "full_psnr_db", "full_ssim", "psnr_db_masked", "ssim_masked", "frame_ms", "model_mib", "views"};
   for (const auto& [name, make] : scenes) {
+    if (!only.empty() && std::find(only.begin(), only.end(), name) == only.end()) {
+      rep.skipped["scene_" + name + "_not_asked"] = 1;
+      continue;
+    }
     auto run = make();
     if (!run) {
       rep.warnings.push_back(name + ": " + run.error().message);

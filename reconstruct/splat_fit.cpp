@@ -66,7 +66,8 @@ struct SplatFrame {
   std::vector<uint32_t> tile_start, tile_list;
 };
 
-// LSD radix sort of (positive float key, index) pairs by key.
+}  // namespace
+
 void radix_sort(std::vector<std::pair<uint32_t, uint32_t>>& a) {
   std::vector<std::pair<uint32_t, uint32_t>> tmp(a.size());
   for (int shift = 0; shift < 32; shift += 8) {
@@ -77,6 +78,8 @@ void radix_sort(std::vector<std::pair<uint32_t, uint32_t>>& a) {
     a.swap(tmp);
   }
 }
+
+namespace {
 
 Intrinsics scaled(const Intrinsics& K, int s) {
   if (s == 1) return K;

@@ -64,6 +64,11 @@ void sh_basis(const Eigen::Vector3f& dir, int n, float* out);
 Eigen::Vector3f splat_color(const Splat& s, int coeffs, const Eigen::Vector3f& dir);
 inline int sh_coeffs(int degree) { return (degree + 1) * (degree + 1); }
 
+// LSD radix sort of (key, index) pairs by key (a positive float's bits sort
+// as the float): the facets' depth order, per photo in the fit and per frame
+// in the renderer.
+void radix_sort(std::vector<std::pair<uint32_t, uint32_t>>& pairs);
+
 struct SplatView {
   Intrinsics intrinsics;
   Eigen::Isometry3d world_from_camera = Eigen::Isometry3d::Identity();

@@ -9,6 +9,14 @@
 namespace s2r {
 namespace {
 
+// Under sanitizers (S2R_SANITIZED) the fits run fewer epochs and the
+// thresholds follow: the instrumented compositing is several times slower.
+#ifdef S2R_SANITIZED
+constexpr bool kSanitized = true;
+#else
+constexpr bool kSanitized = false;
+#endif
+
 Intrinsics small_camera() {
   Intrinsics K;
   K.width = 160, K.height = 120;
@@ -110,7 +118,7 @@ TEST(SplatFit, FitsASphereFromItsPhotosAndDrawsUnseenViews) {
   SplatFitOptions o;
   o.background = bg;
   o.seconds = 120;
-  o.max_epochs = 16;
+  o.max_epochs = kSanitized ? 4 : 16;
   o.sh_degree = 0;
   auto splats = init_splats(ball_grid(0.34, 0.04), 0.04f, tr.views, o);
   const size_t initial = splats.size();
@@ -122,7 +130,7 @@ TEST(SplatFit, FitsASphereFromItsPhotosAndDrawsUnseenViews) {
   ASSERT_FALSE(fit->curve.empty());
   // Training error falls: the last epoch beats the first by a wide margin.
   EXPECT_GT(fit->curve.back().train_psnr_db, fit->curve.front().train_psnr_db + 5);
-  EXPECT_GT(fit->train_psnr_db, 28.0);
+  EXPECT_GT(fit->train_psnr_db, kSanitized ? 18.0 : 28.0);
   double held_psnr = 0;
   for (size_t i = 0; i < held.size(); ++i) {
     const ImageU8 drawn = to_u8(render_splats(splats, 1, small_camera(), held[i], bg));
@@ -130,7 +138,7 @@ TEST(SplatFit, FitsASphereFromItsPhotosAndDrawsUnseenViews) {
   }
   std::printf("train %.2f dB, held-out %.2f dB, %zu -> %zu facets, %d epochs, %.1f s\n", fit->train_psnr_db, held_psnr,
               initial, splats.size(), fit->epochs, fit->seconds);
-  EXPECT_GT(held_psnr, 26.0);
+  EXPECT_GT(held_psnr, kSanitized ? 18.0 : 26.0);
 }
 
 TEST(SplatFit, DivergenceIsAnErrorAndLeavesTheFacets) {
@@ -198,14 +206,14 @@ TEST(SplatFit, A4KPhotoFitsAtACoarseScaleFirst) {
   std::vector<SplatView> views{{K, T, &photo}};
   SplatFitOptions o;
   o.background = bg;
-  o.max_epochs = 2;
+  o.max_epochs = kSanitized ? 1 : 2;
   o.refine = false;
   o.coarse_levels = 0;
-  auto splats = init_splats(ball_grid(0.34, 0.04), 0.04f, views, o);
+  auto splats = init_splats(ball_grid(0.34, 0.08), 0.08f, views, o);
   auto fit = fit_splats(splats, views, o);
   ASSERT_TRUE(fit) << fit.error().message;
   ASSERT_FALSE(fit->curve.empty());
-  EXPECT_GE(fit->curve.front().scale, 4);  // 0.04 m spans ~100 px: the first epochs at a quarter size or less
+  EXPECT_GE(fit->curve.front().scale, 4);  // 0.08 m spans ~200 px: the first epochs at a quarter size or less
   EXPECT_GT(fit->train_psnr_db, fit->initial_psnr_db);
 }
 

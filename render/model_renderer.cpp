@@ -16,6 +16,7 @@
 #include "core/report.h"
 #include "render/gl_program.h"
 #include "render/glossy_renderer.h"
+#include "reconstruct/splat_fit.h"
 
 namespace s2r {
 
@@ -294,7 +295,8 @@ void main() {
   vec4 clip = to_clip(c);
   vec2 ndc = clip.xy / clip.w;
   v_centre = vec2(((ndc.x + 1.0) * u_view_size.x - 1.0) * 0.5, ((1.0 - ndc.y) * u_view_size.y - 1.0) * 0.5);
-  float r = 3.0 * v_sigma + 1.0;
+  // Beyond this radius alpha < 1/255 or the footprint is cut: nothing drawn.
+  float r = v_sigma * sqrt(min(9.0, 2.0 * log(max(255.0 * v_opacity, 1.0))));
   vec2 corner = vec2(float(gl_VertexID & 1), float(gl_VertexID >> 1)) * 2.0 - 1.0;
   gl_Position = vec4(ndc + corner * (2.0 * r) / u_view_size, 0.0, 1.0);
   vec3 d = normalize(c - u_eye);
@@ -889,12 +891,12 @@ Status ModelRenderer::draw_splats(const Pass& pass, const Framebuffer& target, D
   for (size_t i = 0; i < n; ++i) {
     const float* c = &model_.splats[i * stride];
     const float z = zrow[0] * c[0] + zrow[1] * c[1] + zrow[2] * c[2] + zrow[3];
-    if (!(z > pass.near_m)) continue;
+    if (!(z > pass.near_m) || c[4] < 1.f / 255.f) continue;
     uint32_t bits;
     std::memcpy(&bits, &z, 4);
     keys.emplace_back(~bits, uint32_t(i));  // far first: descending z
   }
-  std::sort(keys.begin(), keys.end());
+  radix_sort(keys);
   splat_order_.resize(keys.size());
   for (size_t i = 0; i < keys.size(); ++i) splat_order_[i] = keys[i].second;
   st.selection.facets = n;
