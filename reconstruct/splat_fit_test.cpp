@@ -129,7 +129,7 @@ TEST(SplatFit, FitsASphereFromItsPhotosAndDrawsUnseenViews) {
   EXPECT_EQ(fit->final_count, splats.size());
   ASSERT_FALSE(fit->curve.empty());
   // Training error falls: the last epoch beats the first by a wide margin.
-  EXPECT_GT(fit->curve.back().train_psnr_db, fit->curve.front().train_psnr_db + 5);
+  EXPECT_GT(fit->curve.back().train_psnr_db, fit->curve.front().train_psnr_db + (kSanitized ? 2 : 5));
   EXPECT_GT(fit->train_psnr_db, kSanitized ? 18.0 : 28.0);
   double held_psnr = 0;
   for (size_t i = 0; i < held.size(); ++i) {
@@ -206,7 +206,7 @@ TEST(SplatFit, A4KPhotoFitsAtACoarseScaleFirst) {
   std::vector<SplatView> views{{K, T, &photo}};
   SplatFitOptions o;
   o.background = bg;
-  o.max_epochs = kSanitized ? 1 : 2;
+  o.max_epochs = 2;  // the first epoch's figure is the error before its steps
   o.refine = false;
   o.coarse_levels = 0;
   auto splats = init_splats(ball_grid(0.34, 0.08), 0.08f, views, o);
