@@ -204,8 +204,6 @@ Result<Model> load_model(const fs::path& dir) {
       const uint64_t ns = static_cast<uint64_t>(pay.at("splats").integer("records"));
       m.splat_layout.sh_degree = static_cast<int>(doc.integer("splat_sh_degree"));
       if (m.splat_layout.sh_degree < 0 || m.splat_layout.sh_degree > 2) doc.error("splat_sh_degree", "must be 0, 1 or 2");
-      if (ns % uint64_t(m.splat_layout.stride()) != 0)
-        pay.at("splats").error("records", "not a whole number of facets of " + std::to_string(m.splat_layout.stride()) + " floats");
       auto sp = unpack<float>(dir / "splats.bin", ns);
       if (!sp) return std::unexpected(sp.error());
       m.splats = std::move(*sp);

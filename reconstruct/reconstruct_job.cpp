@@ -716,10 +716,8 @@ Status fit_step(const ReconstructJob& job, const Session& s, const std::vector<V
   for (const auto& p : fit->curve) curve.rows.push_back({p.seconds, double(p.epoch), double(p.scale), p.train_psnr_db, double(p.splats)});
   if (auto st = curve.write_csv(job.out / "fit.csv"); !st) return st;
   for (const auto& [at, snap] : fit->snapshots) {
-    Model m = model;
-    m.splats = records(snap);
     const std::string name = fmt::format("splats_{:.0f}s.bin", at);
-    if (auto st = save_splat_payload(job.out / name, m.splats); !st) return st;
+    if (auto st = save_splat_payload(job.out / name, records(snap)); !st) return st;
   }
   fit->snapshots.clear();
   rep.counts["fit_candidates"] = double(fit->initial);
