@@ -143,6 +143,18 @@ struct BenchArgs {
 struct SummaryArgs {
   std::string folder, title = "scan2render run";
 };
+// s2r batch (app/batch.h): many captures through the same steps.
+struct BatchArgs {
+  std::string root, out, steps = "import,calibrate,register,reconstruct,eval", options, status;
+  int jobs = 1;
+  bool retry_failed = false;
+  int task = -1, tasks = 0;  // a Slurm array task (the script --slurm writes runs it)
+  bool slurm = false;
+  std::string partition, time, sbatch = "sbatch";
+  double mem_mb = 0;
+  int cpus_per_task = 2;
+  std::vector<std::string> sbatch_args;
+};
 
 // The command a parse chose, with its arguments. Every subcommand's type is
 // listed here once: the engine runs each through `run(const A&)` (app/run.h),
@@ -154,6 +166,6 @@ using Chosen =
                  std::shared_ptr<RegisterArgs>, std::shared_ptr<ReconstructArgs>, std::shared_ptr<PreviewArgs>,
                  std::shared_ptr<RenderArgs>, std::shared_ptr<EvalArgs>, std::shared_ptr<ViewArgs>,
                  std::shared_ptr<RaytraceArgs>, std::shared_ptr<EnvmapArgs>, std::shared_ptr<BenchArgs>,
-                 std::shared_ptr<SummaryArgs>>;
+                 std::shared_ptr<SummaryArgs>, std::shared_ptr<BatchArgs>>;
 
 }  // namespace s2r::cli

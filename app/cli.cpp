@@ -52,6 +52,37 @@ void add_summary(CLI::App& app, Chosen& chosen) {
   sub->callback([a, &chosen] { chosen = a; });
 }
 
+void add_batch(CLI::App& app, Chosen& chosen) {
+  auto* sub = app.add_subcommand(
+      "batch",
+      "Many captures through the same steps, here or as a Slurm job array. Every capture under ROOT (a session\n"
+      "folder, or a data set with an importer) runs import, calibrate, register, reconstruct, eval (and export)\n"
+      "as needed, each step its own s2r process, results in OUT/<capture>/; OUT/index.html has a row per capture,\n"
+      "failures first. Run it again to resume: finished steps whose outputs validate are skipped.");
+  auto a = std::make_shared<BatchArgs>();
+  sub->add_option("root", a->root, "folder of captures (or one capture); default: the root OUT/batch.json names");
+  sub->add_option("--out", a->out, "results folder");
+  sub->add_option("--steps", a->steps, "steps to run, in pipeline order: import, calibrate, register, reconstruct, eval, "
+                                       "export")->capture_default_str();
+  sub->add_option("--options", a->options, "JSON options file, the same for every capture (holdout, heldout_views, "
+                                           "export, and each step's extra arguments; docs/cli.md)");
+  sub->add_option("--jobs", a->jobs, "captures run at once on this machine")->capture_default_str()->check(CLI::Range(1, 256));
+  sub->add_flag("--retry-failed", a->retry_failed, "run again only the captures that failed");
+  sub->add_option("--status", a->status, "RESULTS: what finished, read from its files; writes RESULTS/index.html "
+                                         "(exit 0: all done, 1: failures, 3: some not finished)");
+  sub->add_flag("--slurm", a->slurm, "submit a Slurm job array (a task per capture) and a summary job after it");
+  sub->add_option("--partition", a->partition, "--slurm: sbatch --partition");
+  sub->add_option("--time", a->time, "--slurm: time limit per task (sbatch --time; default from measured step seconds)");
+  sub->add_option("--mem", a->mem_mb, "--slurm: MB per task (default from the steps' measured peaks)");
+  sub->add_option("--cpus-per-task", a->cpus_per_task, "--slurm: cores per task")->capture_default_str()->check(CLI::Range(1, 4096));
+  sub->add_option("--sbatch-arg", a->sbatch_args, "--slurm: an extra sbatch argument, passed through (repeat it)")
+      ->allow_extra_args(false);
+  sub->add_option("--sbatch", a->sbatch, "--slurm: the sbatch program")->capture_default_str();
+  sub->add_option("--task", a->task, "run array task I of --tasks (what the --slurm script runs)");
+  sub->add_option("--tasks", a->tasks, "the array's size");
+  sub->callback([a, &chosen] { chosen = a; });
+}
+
 }  // namespace
 
 void add_commands(CLI::App& app, Chosen& chosen, bool& quiet) {
@@ -66,6 +97,7 @@ void add_commands(CLI::App& app, Chosen& chosen, bool& quiet) {
   add_render_commands(app, chosen);
   add_bench(app, chosen);
   add_summary(app, chosen);
+  add_batch(app, chosen);
 }
 
 std::optional<int> parse_command_line(int argc, char** argv, Chosen& chosen, bool& quiet) {

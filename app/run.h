@@ -39,6 +39,7 @@ int run(const BenchArgs& a);    // app/cmd_bench.cpp
 int bench_views(const std::filesystem::path& out, int lego_views, double fit_lego, double fit_others,
                 const std::vector<std::string>& scenes);
 int run(const SummaryArgs& a);  // app/cmd_summary.cpp
+int run(const BatchArgs& a);    // app/cmd_batch.cpp
 
 // Print the report's brief line and write it to `path` (or OUT/report.json).
 int finish(const Report& report, const std::filesystem::path& path);
