@@ -20,6 +20,7 @@
 #include "capture/synth_rig.h"
 #include "reconstruct/reconstruct_job.h"
 #include "reconstruct/register_job.h"
+#include "reconstruct/session_export.h"
 #include "render/envmap.h"
 #include "render/model_eval.h"
 #include "render/raytrace_job.h"
@@ -143,6 +144,11 @@ struct BenchArgs {
 struct SummaryArgs {
   std::string folder, title = "scan2render run";
 };
+// s2r export FORMAT SESSION: a capture for other tools.
+struct ExportArgs {
+  ExportJob job;
+  std::string report;
+};
 // s2r batch (app/batch.h): many captures through the same steps.
 struct BatchArgs {
   std::string root, out, steps = "import,calibrate,register,reconstruct,eval", options, status;
@@ -166,6 +172,6 @@ using Chosen =
                  std::shared_ptr<RegisterArgs>, std::shared_ptr<ReconstructArgs>, std::shared_ptr<PreviewArgs>,
                  std::shared_ptr<RenderArgs>, std::shared_ptr<EvalArgs>, std::shared_ptr<ViewArgs>,
                  std::shared_ptr<RaytraceArgs>, std::shared_ptr<EnvmapArgs>, std::shared_ptr<BenchArgs>,
-                 std::shared_ptr<SummaryArgs>, std::shared_ptr<BatchArgs>>;
+                 std::shared_ptr<SummaryArgs>, std::shared_ptr<BatchArgs>, std::shared_ptr<ExportArgs>>;
 
 }  // namespace s2r::cli

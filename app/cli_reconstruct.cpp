@@ -35,6 +35,31 @@ void add_register(CLI::App& app, Chosen& chosen) {
   sub->callback([a, &chosen] { chosen = a; });
 }
 
+void add_export(CLI::App& app, Chosen& chosen) {
+  auto* sub = app.add_subcommand(
+      "export",
+      "A calibrated capture for other tools (docs/formats.md, Exports):\n"
+      "  colmap      cameras.txt, images.txt, points3D.txt + images/ (COLMAP's text model: cam_from_world,\n"
+      "              pixel centres at i+0.5; points: the depth frames fused on a voxel grid, with the\n"
+      "              frames that saw each as its track)\n"
+      "  nerfstudio  transforms.json + images/ (+ masks/): per-frame intrinsics and distortion,\n"
+      "              camera-to-world in OpenGL axes, for NeRF and Gaussian-splatting trainers\n"
+      "Poses as reconstruct resolves them. OUT must be new or empty; it appears only when whole.");
+  auto a = std::make_shared<ExportArgs>();
+  ExportJob& job = a->job;
+  sub->add_option("format", job.format, "colmap | nerfstudio")->required()->check(CLI::IsMember({"colmap", "nerfstudio"}));
+  sub->add_option("session", job.session, "capture session folder")->required();
+  sub->add_option("--out", job.out, "folder to create")->required();
+  sub->add_option("--poses", job.poses, "registered poses (s2r register)");
+  sub->add_option("--calibration", job.calibration, "calibration file (intrinsics, depth extrinsic, turntable axis)");
+  sub->add_option("--max-points", job.max_points, "colmap: at most this many points (the most observed first)")
+      ->capture_default_str();
+  sub->add_option("--point-voxel", job.point_voxel_m, "colmap: grid the depth points are fused on, metres (0: extent/256)")
+      ->capture_default_str();
+  sub->add_option("--report", a->report, "report path (default OUT/report.json)");
+  sub->callback([a, &chosen] { chosen = a; });
+}
+
 void add_reconstruct(CLI::App& app, Chosen& chosen) {
   auto* sub = app.add_subcommand(
       "reconstruct",
@@ -92,6 +117,7 @@ void add_reconstruct(CLI::App& app, Chosen& chosen) {
 void add_reconstruct_commands(CLI::App& app, Chosen& chosen) {
   add_register(app, chosen);
   add_reconstruct(app, chosen);
+  add_export(app, chosen);
 }
 
 }  // namespace s2r::cli

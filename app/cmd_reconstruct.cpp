@@ -7,6 +7,7 @@
 #include "app/run.h"
 #include "reconstruct/reconstruct_job.h"
 #include "reconstruct/register_job.h"
+#include "reconstruct/session_export.h"
 
 namespace s2r::cli {
 namespace fs = std::filesystem;
@@ -66,6 +67,16 @@ int run(const ReconstructArgs& a) {
   auto r = run_reconstruct_job(job);
   if (!r) return error(in_flag_terms(r.error(), flags));
   return finish(r->to_report(), job.out / "report.json");
+}
+
+int run(const ExportArgs& a) {
+  static const FlagNames flags = {{"max_points", "--max-points"}, {"out", "--out"}, {"format", "format"}};
+  auto r = export_session(a.job);
+  if (!r) return error(in_flag_terms(r.error(), flags));
+  if (!a.report.empty()) return finish(*r, a.report);
+  std::printf("%s\n", r->brief().c_str());
+  std::printf("report: %s\n", (a.job.out / "report.json").c_str());
+  return 0;
 }
 
 }  // namespace s2r::cli

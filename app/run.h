@@ -28,6 +28,7 @@ int run(const AxisArgs& a);
 int run(const MarkersArgs& a);
 int run(const RegisterArgs& a);  // app/cmd_reconstruct.cpp
 int run(const ReconstructArgs& a);
+int run(const ExportArgs& a);
 int run(const PreviewArgs& a);  // app/cmd_render.cpp
 int run(const RenderArgs& a);
 int run(const EvalArgs& a);
