@@ -199,6 +199,9 @@ std::optional<std::string> capture_kind(const fs::path& dir) {
   if ((exists_file(dir / "color/color_0.png") && exists_file(dir / "depth/depth_0.png")) ||
       (exists_file(dir / "rgb_0.png") && exists_file(dir / "depth_0.png")))
     return "realsense";
+  if (exists_file(dir / "frame-000000.pose.txt") &&
+      (exists_file(dir / "frame-000000.color.png") || exists_file(dir / "frame-000000.color.jpg")))
+    return "7scenes";
   for (const auto& e : fs::directory_iterator(dir, ec)) {
     const std::string n = e.path().filename().string();
     if (n.size() > 8 && n.ends_with("_par.txt") && e.is_regular_file()) return "middlebury";
@@ -237,7 +240,7 @@ Result<std::vector<Capture>> discover(const fs::path& root) {
   walk(root, 1);
   if (out.empty())
     return fail(ErrorCode::not_found, "'" + root.string() + "': no capture found (a session folder with session.json, "
-                                      "or a data set: transforms.json, a COLMAP model, *_par.txt, RealSense colour+depth)");
+                                      "or a data set: transforms.json, a COLMAP model, *_par.txt, RealSense colour+depth, 7-Scenes frames)");
   std::set<std::string> names;
   for (auto& c : out) {
     std::string n = c.name;

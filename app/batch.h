@@ -56,11 +56,13 @@ Result<Options> load_options(const std::filesystem::path& file);  // empty path:
 // A capture found under the root: a session folder (session.json) or a data
 // set with an importer: nerf (transforms.json / transforms_train.json),
 // colmap (cameras.txt|bin, or sparse/0/), middlebury (*_par.txt), realsense
-// (color/color_0.png + depth/depth_0.png).
+// (color/color_0.png + depth/depth_0.png), 7scenes (frame-000000.color.* +
+// .pose.txt). Stanford range scans are left out: they have no colour to
+// reconstruct from (s2r register --stanford takes them).
 struct Capture {
   std::string name;  // RESULTS/<name>: the path under the root, '/' -> '_'
   std::filesystem::path path;
-  std::string kind;  // session | nerf | colmap | middlebury | realsense
+  std::string kind;  // session | nerf | colmap | middlebury | realsense | 7scenes
 };
 std::optional<std::string> capture_kind(const std::filesystem::path& dir);
 // The root itself if it is a capture, else every capture below it (three

@@ -82,6 +82,9 @@ TEST(Batch, DiscoversEachKindOnceAndNotInsideACaptureOrAResultsFolder) {
   touch(t.path / "dino" / "dinoSR_par.txt");
   touch(t.path / "bear" / "color" / "color_0.png");
   touch(t.path / "bear" / "depth" / "depth_0.png");
+  touch(t.path / "kitchen" / "frame-000000.color.png");
+  touch(t.path / "kitchen" / "frame-000000.pose.txt");
+  touch(t.path / "scans" / "bun.conf");  // range scans without colour: not a capture
   touch(t.path / "results" / "batch.json");
   touch(t.path / "results" / "x" / "session" / "session.json");
   touch(t.path / "empty" / "readme.txt");
@@ -92,6 +95,7 @@ TEST(Batch, DiscoversEachKindOnceAndNotInsideACaptureOrAResultsFolder) {
   EXPECT_EQ(kinds, (std::map<std::string, std::string>{{"a", "session"},
                                                        {"bear", "realsense"},
                                                        {"dino", "middlebury"},
+                                                       {"kitchen", "7scenes"},
                                                        {"lab_lego", "nerf"},
                                                        {"lab_proj", "colmap"}}));
   // The root itself as one capture; no capture at all is an error naming what is looked for.
