@@ -20,6 +20,7 @@
 #include "capture/synth_rig.h"
 #include "reconstruct/reconstruct_job.h"
 #include "reconstruct/register_job.h"
+#include "reconstruct/gltf_export.h"
 #include "reconstruct/session_export.h"
 #include "render/envmap.h"
 #include "render/model_eval.h"
@@ -146,7 +147,9 @@ struct SummaryArgs {
 };
 // s2r export FORMAT SESSION: a capture for other tools.
 struct ExportArgs {
-  ExportJob job;
+  std::string format, input;
+  ExportJob job;       // colmap, nerfstudio: input is a session
+  GltfExportJob gltf;  // gltf: input is a model
   std::string report;
 };
 // s2r batch (app/batch.h): many captures through the same steps.

@@ -155,8 +155,8 @@ Result<Options> parse_options(const std::string& text, const std::string& name) 
       if (!v.is_number_integer() || v.get<int>() < 1) return fail(ErrorCode::format, where + ": expected an integer >= 1");
       o.heldout_views = v.get<int>();
     } else if (key == "export") {
-      if (!v.is_string() || (v != "nerfstudio" && v != "colmap"))
-        return fail(ErrorCode::format, where + ": expected \"nerfstudio\" or \"colmap\"");
+      if (!v.is_string() || (v != "nerfstudio" && v != "colmap" && v != "gltf"))
+        return fail(ErrorCode::format, where + ": expected \"nerfstudio\", \"colmap\" or \"gltf\"");
       o.export_format = v.get<std::string>();
     } else if (kExtraKeys.count(key)) {
       if (!v.is_array()) return fail(ErrorCode::format, where + ": expected an array of arguments");
@@ -404,8 +404,14 @@ Result<StepPlan> plan_step(const std::string& step, const Capture& c, const fs::
   }
   if (step == "export") {
     p.outputs = {"export"};
-    std::vector<std::string> args = {"export", o.export_format, session, "--out", (dir / "export").string()};
-    pose_args(args);
+    std::vector<std::string> args;
+    if (o.export_format == "gltf") {
+      args = {"export", "gltf", (dir / "model").string(), "--out", (dir / "export" / "model.glb").string(), "--report",
+              (dir / "export" / "report.json").string()};
+    } else {
+      args = {"export", o.export_format, session, "--out", (dir / "export").string()};
+      pose_args(args);
+    }
     p.commands.push_back(extra(args));
     return p;
   }

@@ -40,7 +40,7 @@ Result<std::vector<std::string>> parse_steps(const std::string& csv);
 // The options file (JSON), the same for every capture:
 //   {"holdout": "auto" | "none" | "3,7",   frames held out of a session's fit
 //    "heldout_views": 10,                  views of a separate held-out split evaluated
-//    "export": "nerfstudio" | "colmap",    what the export step writes
+//    "export": "nerfstudio" | "colmap" | "gltf",  what the export step writes
 //    "import": [..], "calibrate": [..], "register": [..], "reconstruct": [..],
 //    "eval": [..], "export_args": [..]}     extra arguments of each step's subcommand
 struct Options {

@@ -38,25 +38,31 @@ void add_register(CLI::App& app, Chosen& chosen) {
 void add_export(CLI::App& app, Chosen& chosen) {
   auto* sub = app.add_subcommand(
       "export",
-      "A calibrated capture for other tools (docs/formats.md, Exports):\n"
-      "  colmap      cameras.txt, images.txt, points3D.txt + images/ (COLMAP's text model: cam_from_world,\n"
-      "              pixel centres at i+0.5; points: the depth frames fused on a voxel grid, with the\n"
-      "              frames that saw each as its track)\n"
-      "  nerfstudio  transforms.json + images/ (+ masks/): per-frame intrinsics and distortion,\n"
-      "              camera-to-world in OpenGL axes, for NeRF and Gaussian-splatting trainers\n"
-      "Poses as reconstruct resolves them. OUT must be new or empty; it appears only when whole.");
+      "A capture or a model for other tools (docs/formats.md, Exports):\n"
+      "  colmap SESSION      cameras.txt, images.txt, points3D.txt + images/ (COLMAP's text model:\n"
+      "                      cam_from_world, pixel centres at i+0.5; points: the depth frames fused on a\n"
+      "                      voxel grid, with the frames that saw each as its track)\n"
+      "  nerfstudio SESSION  transforms.json + images/ (+ masks/): per-frame intrinsics and distortion,\n"
+      "                      camera-to-world in OpenGL axes, for NeRF and Gaussian-splatting trainers\n"
+      "  gltf MODEL          FILE.glb: the patch mesh (or fused surface) with a texture atlas baked from\n"
+      "                      the photos, metres, +Y up, the capture's cameras as glTF cameras\n"
+      "Poses as reconstruct resolves them. A folder OUT must be new or empty; nothing appears until whole.");
   auto a = std::make_shared<ExportArgs>();
-  ExportJob& job = a->job;
-  sub->add_option("format", job.format, "colmap | nerfstudio")->required()->check(CLI::IsMember({"colmap", "nerfstudio"}));
-  sub->add_option("session", job.session, "capture session folder")->required();
-  sub->add_option("--out", job.out, "folder to create")->required();
-  sub->add_option("--poses", job.poses, "registered poses (s2r register)");
-  sub->add_option("--calibration", job.calibration, "calibration file (intrinsics, depth extrinsic, turntable axis)");
-  sub->add_option("--max-points", job.max_points, "colmap: at most this many points (the most observed first)")
+  sub->add_option("format", a->format, "colmap | nerfstudio | gltf")->required()->check(CLI::IsMember({"colmap", "nerfstudio", "gltf"}));
+  sub->add_option("input", a->input, "the session (colmap, nerfstudio) or the model (gltf)")->required();
+  sub->add_option("--out", a->job.out, "folder to create (colmap, nerfstudio) or FILE.glb (gltf)")->required();
+  sub->add_option("--poses", a->job.poses, "registered poses (s2r register)");
+  sub->add_option("--calibration", a->job.calibration, "calibration file (intrinsics, depth extrinsic, turntable axis)");
+  sub->add_option("--max-points", a->job.max_points, "colmap: at most this many points (the most observed first)")
       ->capture_default_str();
-  sub->add_option("--point-voxel", job.point_voxel_m, "colmap: grid the depth points are fused on, metres (0: extent/256)")
+  sub->add_option("--point-voxel", a->job.point_voxel_m, "colmap: grid the depth points are fused on, metres (0: extent/256)")
       ->capture_default_str();
-  sub->add_option("--report", a->report, "report path (default OUT/report.json)");
+  sub->add_option("--mesh", a->gltf.mesh, "gltf: patch (the octree's patch mesh) or surface (the fused surface)")
+      ->check(CLI::IsMember({"patch", "surface"}))->capture_default_str();
+  sub->add_option("--atlas", a->gltf.atlas_max, "gltf: the texture atlas's side at most, texels")->capture_default_str();
+  sub->add_option("--cell", a->gltf.max_cell, "gltf: texels per triangle cell side at most")->capture_default_str();
+  sub->add_option("--threads", a->gltf.threads, "gltf: baking threads (0 = all cores)")->capture_default_str();
+  sub->add_option("--report", a->report, "report path (default OUT/report.json; gltf: OUT's name + .report.json)");
   sub->callback([a, &chosen] { chosen = a; });
 }
 

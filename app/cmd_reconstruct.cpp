@@ -70,13 +70,29 @@ int run(const ReconstructArgs& a) {
 }
 
 int run(const ExportArgs& a) {
-  static const FlagNames flags = {{"max_points", "--max-points"}, {"out", "--out"}, {"format", "format"}};
-  auto r = export_session(a.job);
+  static const FlagNames flags = {{"max_points", "--max-points"}, {"out", "--out"},     {"format", "format"},
+                                  {"atlas_max", "--atlas"},       {"max_cell", "--cell"}, {"mesh", "--mesh"}};
+  Result<Report> r;
+  fs::path report = a.report;
+  if (a.format == "gltf") {
+    GltfExportJob job = a.gltf;
+    job.model = a.input;
+    job.out = a.job.out;
+    r = export_gltf(job);
+    if (report.empty()) report = job.out.parent_path() / (job.out.stem().string() + ".report.json");
+  } else {
+    ExportJob job = a.job;
+    job.format = a.format;
+    job.session = a.input;
+    r = export_session(job);
+    if (report.empty()) {
+      if (!r) return error(in_flag_terms(r.error(), flags));
+      std::printf("%s\nreport: %s\n", r->brief().c_str(), (job.out / "report.json").c_str());
+      return 0;
+    }
+  }
   if (!r) return error(in_flag_terms(r.error(), flags));
-  if (!a.report.empty()) return finish(*r, a.report);
-  std::printf("%s\n", r->brief().c_str());
-  std::printf("report: %s\n", (a.job.out / "report.json").c_str());
-  return 0;
+  return finish(*r, report);
 }
 
 }  // namespace s2r::cli
