@@ -27,6 +27,7 @@
 #include "render/raytrace_job.h"
 #include "render/session_preview.h"
 #include "render/viewer.h"
+#include "render/web_export.h"
 
 namespace s2r::cli {
 
@@ -150,7 +151,8 @@ struct ExportArgs {
   std::string format, input;
   ExportJob job;       // colmap, nerfstudio: input is a session
   GltfExportJob gltf;  // gltf: input is a model
-  std::string report;
+  WebExportJob web;    // web: input is a model
+  std::string background, report;
 };
 // s2r batch (app/batch.h): many captures through the same steps.
 struct BatchArgs {

@@ -46,11 +46,13 @@ void add_export(CLI::App& app, Chosen& chosen) {
       "                      camera-to-world in OpenGL axes, for NeRF and Gaussian-splatting trainers\n"
       "  gltf MODEL          FILE.glb: the patch mesh (or fused surface) with a texture atlas baked from\n"
       "                      the photos, metres, +Y up, the capture's cameras as glTF cameras\n"
+      "  web MODEL           a static folder drawing the microfacet billboards with depth clipping in\n"
+      "                      WebGL2 (index.html; orbit, zoom, pan, touch, the capture's cameras)\n"
       "Poses as reconstruct resolves them. A folder OUT must be new or empty; nothing appears until whole.");
   auto a = std::make_shared<ExportArgs>();
-  sub->add_option("format", a->format, "colmap | nerfstudio | gltf")->required()->check(CLI::IsMember({"colmap", "nerfstudio", "gltf"}));
-  sub->add_option("input", a->input, "the session (colmap, nerfstudio) or the model (gltf)")->required();
-  sub->add_option("--out", a->job.out, "folder to create (colmap, nerfstudio) or FILE.glb (gltf)")->required();
+  sub->add_option("format", a->format, "colmap | nerfstudio | gltf")->required()->check(CLI::IsMember({"colmap", "nerfstudio", "gltf", "web"}));
+  sub->add_option("input", a->input, "the session (colmap, nerfstudio) or the model (gltf, web)")->required();
+  sub->add_option("--out", a->job.out, "folder to create (colmap, nerfstudio, web) or FILE.glb (gltf)")->required();
   sub->add_option("--poses", a->job.poses, "registered poses (s2r register)");
   sub->add_option("--calibration", a->job.calibration, "calibration file (intrinsics, depth extrinsic, turntable axis)");
   sub->add_option("--max-points", a->job.max_points, "colmap: at most this many points (the most observed first)")
@@ -62,6 +64,7 @@ void add_export(CLI::App& app, Chosen& chosen) {
   sub->add_option("--atlas", a->gltf.atlas_max, "gltf: the texture atlas's side at most, texels")->capture_default_str();
   sub->add_option("--cell", a->gltf.max_cell, "gltf: texels per triangle cell side at most")->capture_default_str();
   sub->add_option("--threads", a->gltf.threads, "gltf: baking threads (0 = all cores)")->capture_default_str();
+  sub->add_option("--background", a->background, "web: white, black or R,G,B (0-255 levels); default black, as s2r render");
   sub->add_option("--report", a->report, "report path (default OUT/report.json; gltf: OUT's name + .report.json)");
   sub->callback([a, &chosen] { chosen = a; });
 }

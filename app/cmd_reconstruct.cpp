@@ -8,6 +8,7 @@
 #include "reconstruct/reconstruct_job.h"
 #include "reconstruct/register_job.h"
 #include "reconstruct/session_export.h"
+#include "render/web_export.h"
 
 namespace s2r::cli {
 namespace fs = std::filesystem;
@@ -74,7 +75,23 @@ int run(const ExportArgs& a) {
                                   {"atlas_max", "--atlas"},       {"max_cell", "--cell"}, {"mesh", "--mesh"}};
   Result<Report> r;
   fs::path report = a.report;
-  if (a.format == "gltf") {
+  if (a.format == "web") {
+    WebExportJob job = a.web;
+    job.model = a.input;
+    job.out = a.job.out;
+    if (!a.background.empty()) {
+      auto bg = parse_background(a.background, "--background");
+      if (!bg) return error(bg.error().message);
+      job.background = *bg;
+    }
+    r = export_web(job);
+    if (report.empty()) {
+      if (!r) return error(in_flag_terms(r.error(), flags));
+      std::printf("%s\nreport: %s\nopen: %s (served by any static server, e.g. python3 -m http.server -d %s)\n",
+                  r->brief().c_str(), (job.out / "report.json").c_str(), (job.out / "index.html").c_str(), job.out.c_str());
+      return 0;
+    }
+  } else if (a.format == "gltf") {
     GltfExportJob job = a.gltf;
     job.model = a.input;
     job.out = a.job.out;

@@ -481,6 +481,9 @@ std::vector<float> triangle_reliability(const Mesh& mesh, const Model& model) {
 
 }  // namespace
 
+double camera_field_r2(const Intrinsics& K) { return max_field_r2(K); }
+void fill_silhouette_distance(ImageF& distance) { extend_silhouette_distance(distance); }
+
 struct ModelRenderer::Programs {
   GlProgram billboard, mesh, splat;
 };

@@ -44,12 +44,21 @@
 #include <memory>
 #include <string>
 
+#include "core/image.h"
 #include "core/result.h"
 #include "render/facet_lod.h"
 #include "render/facet_selection.h"
 #include "render/framebuffer.h"
 
 namespace s2r {
+
+// What the billboard pass reads of a camera, shared with the web viewer's
+// export (render/web_export.cpp): the largest |x/z|^2 the camera's lens
+// model is trusted at (its image corners' directions, 20 % to spare), and
+// its distances with one pixel around every hit given the nearest hit's
+// distance (a silhouette pixel the fused surface misses through its centre).
+double camera_field_r2(const Intrinsics& K);
+void fill_silhouette_distance(ImageF& distance);
 
 class GlossyRenderer;
 class GlProgram;
