@@ -118,6 +118,28 @@ TEST_F(Export, ColmapModelIsReadByColmapAndImportsBackToTheSameCameras) {
   ASSERT_TRUE(model) << model.error().message;
   EXPECT_EQ(model->encoding, "binary");
   EXPECT_EQ(model->points3d, static_cast<size_t>(points));
+  // And back to text by COLMAP: the same cameras and poses again.
+  fs::create_directories(*root_ / "colmap_txt");
+  const std::string back = run("QT_QPA_PLATFORM=offscreen colmap model_converter --input_path " + (*root_ / "colmap_bin").string() +
+                                   " --output_path " + (*root_ / "colmap_txt").string() + " --output_type TXT",
+                               &code);
+  ASSERT_EQ(code, 0) << back;
+  auto text = read_colmap_model(*root_ / "colmap_txt");
+  ASSERT_TRUE(text) << text.error().message;
+  EXPECT_EQ(text->encoding, "text");
+  ASSERT_EQ(text->images.size(), model->images.size());
+  EXPECT_EQ(text->points3d, model->points3d);
+  std::map<std::string, const ColmapImage*> by_name;
+  for (const auto& im : model->images) by_name[im.name] = &im;
+  for (const auto& im : text->images) {
+    ASSERT_TRUE(by_name.count(im.name)) << im.name;
+    EXPECT_LT((im.cam_from_world.matrix() - by_name[im.name]->cam_from_world.matrix()).cwiseAbs().maxCoeff(), 1e-9) << im.name;
+    const auto& a = text->cameras.at(im.camera).K;
+    const auto& b = model->cameras.at(by_name[im.name]->camera).K;
+    EXPECT_EQ(text->cameras.at(im.camera).model, model->cameras.at(by_name[im.name]->camera).model);
+    EXPECT_NEAR(a.fx, b.fx, 1e-9);
+    EXPECT_NEAR(a.cx, b.cx, 1e-9);
+  }
   ImportOptions io;
   io.images = *root_ / "colmap" / "images";
   auto imp = import_dataset("colmap", *root_ / "colmap_bin", *root_ / "back_colmap", io);
