@@ -47,9 +47,9 @@ struct InspectArgs {
 struct DevicesArgs {};
 // s2r turntable: talk to a GRBL turntable by hand (or to the simulated one).
 struct TurntableArgs {
-  std::string port;
-  bool sim = false, home = false, unlock = false;
-  int baud = 115200;
+  std::string port, protocol = "grbl";
+  bool sim = false, home = false, unlock = false, status = false;
+  int baud = 115200, turn = 0, steps_per_turn = 3200;
   std::vector<double> moves;
   std::string transcript;
 };
@@ -57,8 +57,8 @@ struct CaptureArgs {
   CaptureOptions capture;
   DeviceOptions devices;
   SimOptions sim;
-  bool use_sim = false;
-  std::string replay, camera, depth, turntable, report;
+  bool use_sim = false, sim_camera = false;
+  std::string replay, camera, depth, turntable, report, protocol = "grbl";
   int settle_ms = int(DeviceOptions{}.settle.count());
   int flush = -1;  // -1: the capture's default for real devices, 0 simulated or replayed
   std::vector<std::string> faults;

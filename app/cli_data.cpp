@@ -58,10 +58,17 @@ void add_capture(CLI::App& app, Chosen& chosen) {
   auto* rep = sub->add_option("--replay", a->replay, "replay a recording folder (color.v4l2rec, depth.v4l2rec, turntable.transcript)");
   auto* cam = sub->add_option("--camera", a->camera, "colour camera: /dev/videoN or libcamera:ID");
   sub->add_option("--depth", a->depth, "depth camera node (UVC Z16), optional");
-  auto* tty = sub->add_option("--turntable", a->turntable, "serial port of the GRBL turntable, e.g. /dev/ttyUSB0");
-  sim->excludes(rep)->excludes(cam);
-  rep->excludes(cam);
+  auto* tty = sub->add_option("--turntable", a->turntable, "serial port of the turntable, e.g. /dev/ttyUSB0");
+  sub->add_option("--protocol", a->protocol, "--turntable's firmware: grbl, horus or fabscan")
+      ->capture_default_str()->check(CLI::IsMember({"grbl", "horus", "fabscan"}));
+  auto* simcam = sub->add_flag("--sim-camera", a->sim_camera,
+                               "with --turntable: the simulated colour and depth cameras, drawing --scene at the angle "
+                               "the real table reports (check a table before a camera is bought)");
+  sim->excludes(rep)->excludes(cam)->excludes(simcam);
+  rep->excludes(cam)->excludes(simcam);
   cam->needs(tty);
+  cam->excludes(simcam);
+  simcam->needs(tty);
   sub->add_option("--record", a->devices.record_dir, "also record the device boundaries into this folder");
   sub->add_option("--width", a->devices.width, "image width")->capture_default_str();
   sub->add_option("--height", a->devices.height, "image height")->capture_default_str();
@@ -130,16 +137,24 @@ void add_devices(CLI::App& app, Chosen& chosen) {
 
 void add_turntable(CLI::App& app, Chosen& chosen) {
   auto* sub = app.add_subcommand("turntable",
-                                 "Talk to a GRBL turntable: its banner and status, then homing and moves in order "
-                                 "(a check of the table and its link before a capture)");
+                                 "Talk to a turntable by hand before a capture: its banner and state, then homing, "
+                                 "moves and a full turn in order (GRBL 1.1, Horus or FabScanPi firmware)");
   auto a = std::make_shared<TurntableArgs>();
   auto* port = sub->add_option("port", a->port, "serial port (e.g. /dev/ttyUSB0)");
-  auto* sim = sub->add_flag("--sim", a->sim, "the simulated GRBL firmware on a pseudo-terminal instead of a port");
+  auto* sim = sub->add_flag("--sim", a->sim, "the simulated firmware of --protocol on a pseudo-terminal instead of a port");
   port->excludes(sim);
+  sub->add_option("--protocol", a->protocol, "the board's firmware: grbl (GRBL 1.1), horus (Ciclop/Horus, GRBL 0.9), "
+                                             "fabscan (FabScanPi)")
+      ->capture_default_str()->check(CLI::IsMember({"grbl", "horus", "fabscan"}));
   sub->add_option("--baud", a->baud, "baud rate")->capture_default_str()->check(CLI::PositiveNumber);
-  sub->add_flag("--home", a->home, "declare the current angle 0 (G92) first");
-  sub->add_flag("--unlock", a->unlock, "unlock a board that starts in Alarm ($X)");
+  sub->add_flag("--status", a->status, "print the board's state and the table's angle, and nothing else");
+  sub->add_flag("--home", a->home, "take the current angle as 0 first (grbl: G92 X0, horus: G50, fabscan: the count)");
+  sub->add_flag("--unlock", a->unlock, "grbl, horus: unlock a board that starts in Alarm ($X)");
   sub->add_option("--move", a->moves, "move to this angle (degrees; repeat for several)")->take_all();
+  sub->add_option("--turn", a->turn, "then a full turn in N steps of 360/N deg, each step's reported angle and "
+                                     "seconds")->check(CLI::Range(1, 100000));
+  sub->add_option("--steps-per-turn", a->steps_per_turn, "fabscan: motor steps a full turn of the table")
+      ->capture_default_str()->check(CLI::PositiveNumber);
   sub->add_option("--transcript", a->transcript, "append every line both ways to this file");
   sub->callback([a, &chosen] {
     if (a->port.empty() && !a->sim) throw CLI::ValidationError("turntable", "give a serial port or --sim");

@@ -97,8 +97,8 @@ int run(const ImportArgs& a) {
 }
 
 int run(const CaptureArgs& a) {
-  if (!a.use_sim && a.replay.empty() && a.camera.empty())
-    return error("choose the devices: --sim, --replay DIR, or --camera DEV --turntable TTY");
+  if (!a.use_sim && a.replay.empty() && a.camera.empty() && !a.sim_camera)
+    return error("choose the devices: --sim, --replay DIR, --camera DEV --turntable TTY, or --turntable TTY --sim-camera");
   // From here on SIGINT/SIGTERM end the session cleanly between frames.
   struct sigaction sa {};
   sa.sa_handler = on_stop_signal;
@@ -114,13 +114,15 @@ int run(const CaptureArgs& a) {
     rig = make_sim_capture(so, d);
   } else if (!a.replay.empty()) {
     rig = make_replay_capture(a.replay, d);
+  } else if (a.sim_camera) {
+    rig = make_sim_camera_capture(a.turntable, a.protocol, a.sim, d);
   } else {
-    rig = make_hardware_capture(a.camera, a.depth, a.turntable, d);
+    rig = make_hardware_capture(a.camera, a.depth, a.turntable, d, a.protocol);
   }
   if (!rig) return error(rig.error().message);
   CaptureOptions o = a.capture;
   if (a.flush >= 0) o.flush_frames = a.flush;
-  else if (a.use_sim || !a.replay.empty()) o.flush_frames = 0;
+  else if (a.use_sim || !a.replay.empty() || a.sim_camera) o.flush_frames = 0;
   auto r = run_capture((*rig)->devices, o, &g_stop);
   if (!r) {
     std::fprintf(stderr, "s2r: error: %s\n", in_flag_terms(r.error(), {{"steps", "--steps"}}).c_str());
@@ -236,35 +238,69 @@ int run(const DevicesArgs&) {
 }
 
 int run(const TurntableArgs& a) {
-  std::unique_ptr<GrblSim> sim;
+  SimBoard board;
   std::string port = a.port;
   if (a.sim) {
-    auto s = GrblSim::start();
-    if (!s) return error(s.error().message);
-    sim = std::move(*s);
-    port = sim->port();
+    auto b = start_sim_board(a.protocol);
+    if (!b) return error(b.error().message);
+    board = std::move(*b);
+    port = board.port();
   }
-  GrblOptions o;
-  o.baud = a.baud;
-  o.unlock_alarm = a.unlock;
-  o.transcript = a.transcript;
-  auto t = GrblTurntable::open(port, o);
+  TurntableChoice c;
+  c.protocol = a.protocol;
+  c.baud = a.baud;
+  c.unlock = a.unlock;
+  c.steps_per_turn = a.steps_per_turn;
+  c.transcript = a.transcript;
+  auto t = open_turntable(port, c);
   if (!t) return error(t.error().message);
-  std::printf("%s\n", (*t)->describe().c_str());
-  auto s = (*t)->status();
-  if (!s) return error(s.error().message);
-  std::printf("state %s, at %.3f deg\n", s->state.c_str(), s->position);
+  Turntable& table = **t;
+  std::printf("%s\n", table.describe().c_str());
+  if (auto* g = dynamic_cast<GrblTurntable*>(&table)) {
+    auto s = g->status();
+    if (!s) return error(s.error().message);
+    std::printf("state %s, at %.3f deg\n", s->state.c_str(), s->position);
+  } else {
+    auto p = table.position();
+    if (!p) return error(p.error().message);
+    std::printf("at %.3f deg (the driver's count: the board reports no position)\n", *p);
+  }
+  if (a.status) return 0;
   if (a.home) {
-    if (auto st = (*t)->home(); !st) return error(st.error().message);
+    if (auto st = table.home(); !st) return error(st.error().message);
     std::printf("homed: the current angle is 0\n");
   }
-  for (double deg : a.moves) {
+  auto move = [&](double deg, const char* what) -> bool {
     const auto t0 = std::chrono::steady_clock::now();
-    if (auto st = (*t)->move_to(deg); !st) return error(st.error().message);
-    auto p = (*t)->position();
-    if (!p) return error(p.error().message);
-    std::printf("moved to %.3f deg (asked %.3f) in %.2f s\n", *p, deg,
+    if (auto st = table.move_to(deg); !st) {
+      error(st.error().message);
+      return false;
+    }
+    auto p = table.position();
+    if (!p) {
+      error(p.error().message);
+      return false;
+    }
+    std::printf("%s %.3f deg (asked %.3f, off %+.3f) in %.2f s\n", what, *p, deg, *p - deg,
                 std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+    return true;
+  };
+  for (double deg : a.moves)
+    if (!move(deg, "moved to")) return 1;
+  if (a.turn > 0) {
+    auto start = table.position();
+    if (!start) return error(start.error().message);
+    std::printf("a full turn in %d steps of %.3f deg from %.3f deg:\n", a.turn, 360.0 / a.turn, *start);
+    double worst = 0;
+    for (int i = 1; i <= a.turn; ++i) {
+      const double target = *start + 360.0 * i / a.turn;
+      char what[32];
+      std::snprintf(what, sizeof what, "  step %d/%d at", i, a.turn);
+      if (!move(target, what)) return 1;
+      auto p = table.position();
+      if (p) worst = std::max(worst, std::abs(*p - target));
+    }
+    std::printf("turned 360 deg; largest difference between asked and reported: %.3f deg\n", worst);
   }
   return 0;
 }

@@ -1,6 +1,8 @@
 #include "capture/capture_devices.h"
 
 #include <algorithm>
+#include <atomic>
+#include <functional>
 #include <chrono>
 #include <mutex>
 
@@ -58,13 +60,131 @@ ColorSensor color_sensor(const Camera& c, const std::string& driver) {
   return s;
 }
 
+TurntableChoice table_choice(const DeviceOptions& o, const std::string& protocol) {
+  TurntableChoice c;
+  c.protocol = protocol;
+  c.settle = o.settle;
+  if (!o.record_dir.empty()) {
+    c.transcript = o.record_dir / "turntable.transcript";
+    std::error_code ec;
+    fs::remove(c.transcript, ec);  // a new recording
+  }
+  return c;
+}
+
+// A turntable that remembers where it said it stands after each call, for a
+// simulated camera to draw the scene there.
+class ObservedTurntable : public Turntable {
+ public:
+  ObservedTurntable(std::unique_ptr<Turntable> t, std::shared_ptr<std::atomic<double>> angle)
+      : t_(std::move(t)), angle_(std::move(angle)) {}
+  Status home() override { return note(t_->home()); }
+  Status set_position(double degrees) override { return note(t_->set_position(degrees)); }
+  Status move_to(double degrees) override { return note(t_->move_to(degrees)); }
+  Result<double> position() override {
+    auto p = t_->position();
+    if (p) angle_->store(*p);
+    return p;
+  }
+  std::string describe() const override { return t_->describe(); }
+
+ private:
+  Status note(Status st) {
+    if (st) (void)position();
+    return st;
+  }
+  std::unique_ptr<Turntable> t_;
+  std::shared_ptr<std::atomic<double>> angle_;
+};
+
+// The rig's colour and depth cameras, drawing the scene at `angle()`.
+Status attach_sim_cameras(CaptureRig& rig, const SimOptions& sim, const DeviceOptions& o, std::function<double()> angle);
+
 }  // namespace
+
+Result<std::unique_ptr<Turntable>> open_turntable(const std::string& port, const TurntableChoice& c) {
+  if (c.protocol == "grbl" || c.protocol == "horus") {
+    GrblOptions g;
+    g.baud = c.baud;
+    g.unlock_alarm = c.unlock;
+    g.settle = c.settle;
+    g.transcript = c.transcript;
+    g.dialect = c.protocol;
+    auto t = GrblTurntable::open(port, g);
+    if (!t) return std::unexpected(t.error());
+    return std::unique_ptr<Turntable>(std::move(*t));
+  }
+  if (c.protocol == "fabscan") {
+    FabScanOptions f;
+    f.baud = c.baud;
+    f.steps_per_turn = c.steps_per_turn;
+    f.settle = c.settle;
+    f.transcript = c.transcript;
+    auto t = FabScanTurntable::open(port, f);
+    if (!t) return std::unexpected(t.error());
+    return std::unique_ptr<Turntable>(std::move(*t));
+  }
+  return fail(ErrorCode::invalid, "protocol: '" + c.protocol + "' (choose grbl, horus or fabscan)");
+}
+
+Result<SimBoard> start_sim_board(const std::string& protocol) {
+  SimBoard b;
+  if (protocol == "grbl" || protocol == "horus") {
+    GrblFaults f;
+    f.horus = protocol == "horus";
+    auto s = GrblSim::start(f);
+    if (!s) return std::unexpected(s.error());
+    b.grbl = std::move(*s);
+    return b;
+  }
+  if (protocol == "fabscan") {
+    auto s = FabScanSim::start();
+    if (!s) return std::unexpected(s.error());
+    b.fabscan = std::move(*s);
+    return b;
+  }
+  return fail(ErrorCode::invalid, "protocol: '" + protocol + "' (choose grbl, horus or fabscan)");
+}
 
 Result<std::unique_ptr<CaptureRig>> make_sim_capture(const SimOptions& sim, const DeviceOptions& o) {
   auto rig = std::make_unique<CaptureRig>();
   auto fw = GrblSim::start(sim.table_faults);
   if (!fw) return std::unexpected(fw.error());
   rig->firmware = std::move(*fw);
+  GrblSim* firmware = rig->firmware.get();
+  if (auto st = attach_sim_cameras(*rig, sim, o, [firmware] { return firmware->position(); }); !st)
+    return std::unexpected(st.error());
+  auto table = GrblTurntable::open(rig->firmware->port(), grbl_options(o));
+  if (!table) return std::unexpected(table.error());
+  Session& h = rig->devices.header;
+  h.turntable = TurntableInfo{"grbl", (*table)->describe()};
+  h.notes.push_back("simulated devices: real V4L2 and GRBL driver code over simulated device boundaries");
+  rig->devices.table = std::move(*table);
+  return rig;
+}
+
+Result<std::unique_ptr<CaptureRig>> make_sim_camera_capture(const std::string& turntable, const std::string& protocol,
+                                                            const SimOptions& sim, const DeviceOptions& o) {
+  auto rig = std::make_unique<CaptureRig>();
+  auto table = open_turntable(turntable, table_choice(o, protocol));
+  if (!table) return std::unexpected(table.error());
+  auto angle = std::make_shared<std::atomic<double>>(0.0);
+  auto observed = std::make_unique<ObservedTurntable>(std::move(*table), angle);
+  if (auto p = observed->position(); !p) return std::unexpected(p.error());
+  if (auto st = attach_sim_cameras(*rig, sim, o, [angle] { return angle->load(); }); !st) return std::unexpected(st.error());
+  Session& h = rig->devices.header;
+  h.source = "capture:sim-camera:" + sim.scene;
+  h.turntable = TurntableInfo{protocol, observed->describe()};
+  h.notes.push_back("a real turntable (" + protocol + ") with the simulated colour and depth cameras: the scene is drawn at "
+                    "the angle the table reports");
+  rig->devices.table = std::move(observed);
+  return rig;
+}
+
+namespace {
+
+Status attach_sim_cameras(CaptureRig& rig_ref, const SimOptions& sim, const DeviceOptions& o, std::function<double()> angle) {
+  CaptureRig* rig = &rig_ref;
   SynthOptions so;
   so.scene = sim.scene;
   so.seed = sim.seed;
@@ -84,11 +204,10 @@ Result<std::unique_ptr<CaptureRig>> make_sim_capture(const SimOptions& sim, cons
     uint64_t renders = 0;
   };
   auto cache = std::make_shared<Cache>();
-  GrblSim* firmware = rig->firmware.get();
   std::shared_ptr<SynthRig> scene_ptr = rig->scene;
-  auto render = [cache, firmware, scene_ptr](bool depth) {
+  auto render = [cache, angle, scene_ptr](bool depth) {
     std::lock_guard lock(cache->mu);
-    const double a = firmware->position();
+    const double a = angle();
     if (std::abs(a - cache->angle) > 1e-9) {
       cache->view = scene_ptr->render_at(a, cache->renders++);
       cache->angle = a;
@@ -126,9 +245,6 @@ Result<std::unique_ptr<CaptureRig>> make_sim_capture(const SimOptions& sim, cons
   auto depth = V4l2Camera::open(std::move(*dio), "/dev/video-sim1", dvc);
   if (!depth) return std::unexpected(depth.error());
 
-  auto table = GrblTurntable::open(rig->firmware->port(), grbl_options(o));
-  if (!table) return std::unexpected(table.error());
-
   Session& h = rig->devices.header;
   h.source = "capture:sim:" + sim.scene;
   h.color = color_sensor(**color, "v4l2-sim");
@@ -140,13 +256,12 @@ Result<std::unique_ptr<CaptureRig>> make_sim_capture(const SimOptions& sim, cons
   ds.unit_m = so.depth_unit_m;
   ds.color_from_depth = rig->scene->color_from_depth();
   h.depth = ds;
-  h.turntable = TurntableInfo{"grbl", (*table)->describe()};
-  h.notes.push_back("simulated devices: real V4L2 and GRBL driver code over simulated device boundaries");
   rig->devices.color = std::move(*color);
   rig->devices.depth = std::move(*depth);
-  rig->devices.table = std::move(*table);
-  return rig;
+  return {};
 }
+
+}  // namespace
 
 Result<std::unique_ptr<CaptureRig>> make_replay_capture(const fs::path& dir, const DeviceOptions& o) {
   auto rig = std::make_unique<CaptureRig>();
@@ -185,7 +300,8 @@ Result<std::unique_ptr<CaptureRig>> make_replay_capture(const fs::path& dir, con
 }
 
 Result<std::unique_ptr<CaptureRig>> make_hardware_capture(const std::string& camera, const std::string& depth,
-                                                          const std::string& turntable, const DeviceOptions& o) {
+                                                          const std::string& turntable, const DeviceOptions& o,
+                                                          const std::string& protocol) {
   auto rig = std::make_unique<CaptureRig>();
   V4l2Config vc;
   vc.width = o.width;
@@ -225,9 +341,9 @@ Result<std::unique_ptr<CaptureRig>> make_hardware_capture(const std::string& cam
     rig->devices.header.depth = ds;
     rig->devices.depth = std::move(*cam);
   }
-  auto table = GrblTurntable::open(turntable, grbl_options(o));
+  auto table = open_turntable(turntable, table_choice(o, protocol));
   if (!table) return std::unexpected(table.error());
-  rig->devices.header.turntable = TurntableInfo{"grbl", (*table)->describe()};
+  rig->devices.header.turntable = TurntableInfo{protocol, (*table)->describe()};
   rig->devices.table = std::move(*table);
   return rig;
 }

@@ -1,5 +1,7 @@
 #include "capture/grbl_sim.h"
 
+#include "capture/pty_device.h"
+
 #include <fcntl.h>
 #include <poll.h>
 #include <pty.h>
@@ -19,32 +21,21 @@ double now_s() {
   return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
 }
 constexpr const char* kBanner = "\r\nGrbl 1.1h ['$' for help]\r\n";
+constexpr const char* kHorusBanner = "\r\nHorus 0.1 ['$' for help]\r\n";
 }  // namespace
-
-static Result<std::unique_ptr<GrblSim>> open_pty(std::unique_ptr<GrblSim> sim, int* master, int* slave,
-                                                 std::string* path) {
-  char name[128] = {};
-  if (openpty(master, slave, name, nullptr, nullptr) != 0) return fail("openpty failed");
-  termios tio{};
-  tcgetattr(*slave, &tio);
-  cfmakeraw(&tio);  // no echo, no CR/LF translation before the host opens the port
-  tcsetattr(*slave, TCSANOW, &tio);
-  fcntl(*master, F_SETFL, fcntl(*master, F_GETFL) | O_NONBLOCK);
-  *path = name;
-  return sim;
-}
 
 Result<std::unique_ptr<GrblSim>> GrblSim::start(const GrblFaults& faults) {
   std::unique_ptr<GrblSim> sim(new GrblSim());
   sim->faults_ = faults;
   sim->alarm_ = faults.start_in_alarm || faults.homing_enabled;
   sim->mask_ = faults.status_mask;
+  sim->motor_on_ = !faults.horus;
   GrblSim* s = sim.get();
-  auto r = open_pty(std::move(sim), &s->master_, &s->slave_, &s->slave_path_);
-  if (!r) return r;
-  if (!faults.no_banner) s->reply(std::string(kBanner) + (s->alarm_ ? "[MSG:'$H'|'$X' to unlock]\r\n" : ""));
+  if (auto st = open_pty(&s->master_, &s->slave_, &s->slave_path_); !st) return std::unexpected(st.error());
+  if (!faults.no_banner)
+    s->reply(std::string(faults.horus ? kHorusBanner : kBanner) + (s->alarm_ ? "[MSG:'$H'|'$X' to unlock]\r\n" : ""));
   s->thread_ = std::thread([s] { s->run(); });
-  return r;
+  return sim;
 }
 
 Result<std::unique_ptr<GrblSim>> GrblSim::replay(const std::filesystem::path& transcript) {
@@ -61,14 +52,13 @@ Result<std::unique_ptr<GrblSim>> GrblSim::replay(const std::filesystem::path& tr
   }
   sim->replaying_ = true;
   GrblSim* s = sim.get();
-  auto r = open_pty(std::move(sim), &s->master_, &s->slave_, &s->slave_path_);
-  if (!r) return r;
+  if (auto st = open_pty(&s->master_, &s->slave_, &s->slave_path_); !st) return std::unexpected(st.error());
   // Device lines before the first host line (the banner) go out at once.
   size_t i = 0;
   for (; i < s->transcript_.size() && s->transcript_[i].first == '<'; ++i) s->reply(s->transcript_[i].second + "\r\n");
   s->transcript_.erase(s->transcript_.begin(), s->transcript_.begin() + static_cast<long>(i));
   s->thread_ = std::thread([s] { s->run_replay(); });
-  return r;
+  return sim;
 }
 
 GrblSim::~GrblSim() {
@@ -87,21 +77,7 @@ void GrblSim::unplug() {
   master_ = -1;
 }
 
-void GrblSim::reply(const std::string& text) {
-  if (master_ < 0) return;
-  size_t done = 0;
-  while (done < text.size()) {
-    ssize_t n = ::write(master_, text.data() + done, text.size() - done);
-    if (n <= 0) {
-      if (errno == EAGAIN || errno == EINTR) {
-        usleep(1000);
-        continue;
-      }
-      return;
-    }
-    done += static_cast<size_t>(n);
-  }
-}
+void GrblSim::reply(const std::string& text) { write_all(master_, text); }
 
 double GrblSim::position_locked() const {
   const double t = now_s();
@@ -114,6 +90,11 @@ double GrblSim::position() const {
   return position_locked() - wco_;
 }
 
+double GrblSim::table_angle() const {
+  std::lock_guard lock(mu_);
+  return position_locked() - wco_ - table_offset_;
+}
+
 double GrblSim::machine_position() const {
   std::lock_guard lock(mu_);
   return position_locked();
@@ -124,6 +105,10 @@ std::string GrblSim::status_line() {
   const bool moving = now_s() < move_end_;
   const char* state = alarm_ ? "Alarm" : moving ? "Run" : "Idle";
   char buf[256];
+  if (faults_.horus) {  // GRBL 0.9's report
+    std::snprintf(buf, sizeof buf, "<%s,MPos:%.3f,0.000,0.000,WPos:%.3f,0.000,0.000>\r\n", state, p, p - wco_);
+    return buf;
+  }
   int n = std::snprintf(buf, sizeof buf, "<%s|%s:%.3f,0.000,0.000", state, (mask_ & 1) ? "MPos" : "WPos",
                         (mask_ & 1) ? p : p - wco_);
   if (mask_ & 2) n += std::snprintf(buf + n, sizeof buf - n, "|Bf:15,128");
@@ -167,7 +152,7 @@ void GrblSim::soft_reset() {
   forget_offsets();
   pending_lines_.clear();
   late_replies_.clear();
-  reply(std::string(kBanner) + (alarm_ ? "[MSG:'$H'|'$X' to unlock]\r\n" : ""));
+  reply(std::string(faults_.horus ? kHorusBanner : kBanner) + (alarm_ ? "[MSG:'$H'|'$X' to unlock]\r\n" : ""));
 }
 
 void GrblSim::limit_alarm(int code) {
@@ -254,6 +239,24 @@ void GrblSim::handle_line(const std::string& raw) {
     reply(out + "error:9\r\n");
     return;
   }
+  if (faults_.horus) {
+    if (line == "M17" || line == "M18") {
+      motor_on_ = line == "M17";
+      reply(out + "ok\r\n");
+      return;
+    }
+    if ((line.rfind("M70", 0) == 0 || line.rfind("M71", 0) == 0) && line.size() > 4 && line[3] == 'T') {
+      reply(out + "ok\r\n");  // lasers off / on
+      return;
+    }
+    if (line == "G50") {  // the current angle becomes 0
+      from_ = to_ = position_locked();
+      move_end_ = move_start_ = 0;
+      wco_ = to_;
+      reply(out + "ok\r\n");
+      return;
+    }
+  }
   if (line.rfind("G92", 0) == 0) {  // declare the current position: a work offset, the motor stays
     const size_t xp = line.find('X');
     const double v = xp == std::string::npos ? 0.0 : std::strtod(line.c_str() + xp + 1, nullptr);
@@ -285,7 +288,16 @@ void GrblSim::handle_line(const std::string& raw) {
     from_ = start;
     to_ = absolute_ ? v + wco_ : start + v;
     move_start_ = now_s();
-    move_end_ = move_start_ + std::abs(to_ - from_) / faults_.degrees_per_second;
+    double speed = faults_.degrees_per_second;
+    if (faults_.horus) {
+      const size_t f = line.find('F');
+      if (f != std::string::npos) {
+        const double feed = std::strtod(line.c_str() + f + 1, nullptr);  // deg/min
+        if (std::isfinite(feed) && feed > 0) speed = std::min(speed, feed / 60.0 * 20);  // the simulated table: 20x the feed
+      }
+      if (!motor_on_) table_offset_ += to_ - from_;  // steps counted, the table stands
+    }
+    move_end_ = move_start_ + std::abs(to_ - from_) / speed;
     if (index == faults_.reset_mid_move_at) reset_at_line_ = index;
     if (index == faults_.hard_limit_at) hard_limit_time_ = 0.5 * (move_start_ + move_end_);
   } else if (line.find_first_not_of("G0123456789.") != std::string::npos && line[0] != '$') {

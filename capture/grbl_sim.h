@@ -44,6 +44,10 @@ struct GrblFaults {
   int status_mask = 1;          // $10 at start: bit 0 MPos (else WPos), bit 1 Bf
   bool homing_enabled = false;  // $22=1: boots (and resets) in Alarm until $H or $X
   int parse_latency_ms = 0;     // a line is parsed this long after it arrives ('?' at once)
+  // Horus (the Ciclop's GRBL 0.9 fork): its banner, 0.9 status reports
+  // ("<Idle,MPos:..,WPos:..>"), the motor released until M17 (a move then
+  // turns nothing), M70/M71 T<n> lasers, G50 origin reset, G1 F in deg/min.
+  bool horus = false;
   // Faults of the link or the board:
   int hard_limit_at = -1;       // the n-th G-code line's move hits a limit switch halfway (ALARM:1)
   int late_ok_at = -1;          // the n-th G-code line's "ok" comes late_ok_ms after it
@@ -58,6 +62,7 @@ class GrblSim {
   ~GrblSim();
   const std::string& port() const { return slave_path_; }
   double position() const;          // current table angle in work coordinates (degrees; what the host commands)
+  double table_angle() const;       // where the table really stands (differs after moves with the motor released)
   double machine_position() const;  // ... in machine coordinates (the motor's count)
   int lines_received() const { return lines_.load(); }
   void unplug();  // closes the device side: the host sees EIO
@@ -87,6 +92,8 @@ class GrblSim {
   bool absolute_ = true, alarm_ = false, silent_ = false;
   bool locked_ = false;      // after a limit alarm: deaf until a soft reset
   bool limit_pin_ = false;   // a limit switch is pressed (Pn:X)
+  bool motor_on_ = true;     // Horus: M17 / M18
+  double table_offset_ = 0;  // Horus: machine degrees counted while the motor was released (the table stood)
   int mask_ = 1;             // $10
   double wco_ = 0;           // work coordinate offset of the table axis (G92)
   bool wco_due_ = true;      // report WCO in the next status report

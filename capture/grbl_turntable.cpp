@@ -43,9 +43,27 @@ std::optional<GrblStatus> parse_grbl_status(const std::string& line, char axis) 
   if (line.size() < 3 || line.front() != '<' || line.back() != '>') return std::nullopt;
   const std::string body = line.substr(1, line.size() - 2);
   GrblStatus s;
+  const int index = axis == 'X' ? 0 : axis == 'Y' ? 1 : axis == 'Z' ? 2 : 3;
+  if (body.find('|') == std::string::npos && body.find(',') < body.find(':')) {
+    // GRBL 0.9 (Horus): "Idle,MPos:x,y,z,WPos:x,y,z[,Buf:..]": the work position.
+    s.state = body.substr(0, body.find(','));
+    const size_t w = body.find(",WPos:");
+    if (s.state.empty() || w == std::string::npos) return std::nullopt;
+    size_t p = w + 6;
+    for (int i = 0; i < index; ++i) {
+      p = body.find(',', p);
+      if (p == std::string::npos) return std::nullopt;
+      ++p;
+    }
+    char* end = nullptr;
+    const double v = std::strtod(body.c_str() + p, &end);
+    if (end == body.c_str() + p || !std::isfinite(v)) return std::nullopt;
+    s.position = v;
+    s.machine = false;
+    return s;
+  }
   s.state = body.substr(0, body.find_first_of("|:"));
   if (s.state.empty()) return std::nullopt;
-  const int index = axis == 'X' ? 0 : axis == 'Y' ? 1 : axis == 'Z' ? 2 : 3;
   // The axis' value in a field "NAME:x,y,z[,a]" (fields are '|'-separated, in any order).
   auto field = [&](const char* name) -> std::optional<std::optional<double>> {
     const std::string key = std::string("|") + name + ":";
@@ -94,8 +112,14 @@ Result<std::unique_ptr<GrblTurntable>> GrblTurntable::open(const std::string& pa
       return fail(st2.error().code, "no GRBL banner from '" + path + "' after a soft reset (is it a GRBL board at " +
                   std::to_string(o.baud) + " baud?): " + st2.error().message, st2.error().sys_errno);
   }
+  if (o.dialect != "grbl" && o.dialect != "horus")
+    return fail(ErrorCode::invalid, "dialect: '" + o.dialect + "' (grbl or horus)");
   auto s = t->status();
   if (!s) return std::unexpected(s.error());
+  if (o.dialect == "horus") {
+    // Horus boards start with the motor released: on, or the table would not turn.
+    if (auto st = t->command("M17"); !st) return std::unexpected(st.error());
+  }
   if (s->state == "Alarm") {
     if (!o.unlock_alarm)
       return fail(ErrorCode::device_fault,
@@ -189,7 +213,7 @@ GrblReply classify_grbl_reply(const std::string& line, char axis) {
   } else if (r.text.rfind("ALARM:", 0) == 0) {
     r.kind = GrblReply::kAlarm;
     r.code = reply_code(r.text, 6);
-  } else if (r.text.rfind("Grbl", 0) == 0) {
+  } else if (r.text.rfind("Grbl", 0) == 0 || r.text.rfind("Horus", 0) == 0) {
     r.kind = GrblReply::kBanner;
   } else if (auto st = parse_grbl_status(r.text, axis)) {
     r.kind = GrblReply::kStatus;
@@ -257,7 +281,9 @@ Result<GrblStatus> GrblTurntable::status() {
 }
 
 Status GrblTurntable::home() {
-  // DIY turntables rarely have a homing switch: the current position becomes 0.
+  // DIY turntables rarely have a homing switch: the current position becomes 0
+  // (Horus: G50, its origin reset, as its host software sends it).
+  if (opt_.dialect == "horus") return command("G50");
   return set_position(0);
 }
 
@@ -269,7 +295,10 @@ Status GrblTurntable::set_position(double degrees) {
 
 Status GrblTurntable::move_to(double degrees) {
   char buf[64];
-  std::snprintf(buf, sizeof buf, "G90 G0 %s%.4f", opt_.axis.c_str(), degrees);
+  if (opt_.dialect == "horus")
+    std::snprintf(buf, sizeof buf, "G1 %s%.4f F%.1f", opt_.axis.c_str(), degrees, opt_.feed_deg_per_min);
+  else
+    std::snprintf(buf, sizeof buf, "G90 G0 %s%.4f", opt_.axis.c_str(), degrees);
   if (auto st = command(buf); !st) {
     // A lost "ok" is not fatal: the status poll below tells where the table is.
     if (!st.error().is(ErrorCode::timeout)) return st;
@@ -279,7 +308,7 @@ Status GrblTurntable::move_to(double degrees) {
     auto s = status();
     if (!s) return std::unexpected(s.error());
     if (s->state == "Alarm")
-      return fail(ErrorCode::device_fault, "turntable entered alarm state during the move to " + std::string(buf + 7));
+      return fail(ErrorCode::device_fault, "turntable entered alarm state during the move to " + std::to_string(degrees) + " deg");
     if (s->state == "Idle") {
       if (std::abs(s->position - degrees) > 0.01) {
         // The command was lost before the board took it: send it again (absolute, so safe).

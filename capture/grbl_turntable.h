@@ -1,5 +1,10 @@
-// A DIY turntable on an Arduino running GRBL-style firmware (as Horus/Ciclop
-// and FabScan do): 115200 baud, the table is the X axis in degrees.
+// A DIY turntable on an Arduino running GRBL-style firmware: GRBL 1.1 itself,
+// or Horus (the Ciclop scanner's GRBL 0.9 fork, bqlabs/horus-fw): 115200
+// baud, the table is the X axis in degrees. Horus differs in its banner
+// ("Horus 0.1 ['$' for help]"), its status reports (GRBL 0.9's
+// "<Idle,MPos:x,y,z,WPos:x,y,z>"), motors that start released (M17 turns
+// them on), moves as "G1 X<deg> F<deg/min>" and G50 to take the current
+// angle as 0, as its own host software sends them.
 //
 //   open      the board resets when the port opens and prints a banner
 //             ("Grbl 1.1h ['$' for help]"); without one we send Ctrl-X (soft
@@ -43,6 +48,8 @@ struct GrblOptions {
   int retries = 3;              // status polls that may go unanswered in a row
   bool unlock_alarm = false;    // send $X if the board starts in alarm
   std::string axis = "X";
+  std::string dialect = "grbl";   // grbl | horus
+  double feed_deg_per_min = 600;  // horus: the G1 feed
   std::filesystem::path transcript;  // if set, every line in both directions is appended here
 };
 
@@ -55,7 +62,8 @@ struct GrblStatus {
 
 // "<Idle|MPos:15.000,0.000,0.000|FS:0,0>" or "<Idle|WPos:...|WCO:...>" ->
 // state, the axis position and its work offset if reported; other fields
-// (Bf, FS, Ov, Pn, ...) in any order are skipped.
+// (Bf, FS, Ov, Pn, ...) in any order are skipped. GRBL 0.9's form (Horus),
+// "<Idle,MPos:15.000,0.000,0.000,WPos:15.000,0.000,0.000>", gives WPos.
 std::optional<GrblStatus> parse_grbl_status(const std::string& line, char axis = 'X');
 
 // What one line from the board says. Line noise glued to its front ("~#ok")

@@ -142,6 +142,10 @@ void LineSplitter::feed(std::string_view bytes) {
       ++cut_;
     }
     partial_.push_back(ch);
+    if (prompt_ != 0 && partial_.size() == 1 && ch == prompt_) {
+      lines_.push_back(std::move(partial_));
+      partial_.clear();
+    }
   }
 }
 

@@ -30,9 +30,14 @@ class LineSplitter {
   std::optional<std::string> next();  // the oldest complete line, if any
   void clear();
   size_t cut_lines() const { return cut_; }
+  // A device that prints a prompt with no line end after it (FabScan's ">"
+  // once a command is done): that character alone at the start of a line
+  // is a line of its own. 0: none.
+  void set_prompt(char prompt) { prompt_ = prompt; }
 
  private:
   size_t max_line_;
+  char prompt_ = 0;
   std::string partial_;
   std::deque<std::string> lines_;
   bool after_cr_ = false;
@@ -60,6 +65,8 @@ class SerialPort {
   // Observer of every line in both directions (transcript recording).
   using Tap = std::function<void(char direction, const std::string& line)>;
   void set_tap(Tap tap) { tap_ = std::move(tap); }
+  // See LineSplitter::set_prompt.
+  void set_prompt(char prompt) { lines_.set_prompt(prompt); }
 
  private:
   SerialPort() = default;

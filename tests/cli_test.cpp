@@ -132,6 +132,28 @@ TEST(Cli, TurntableTalksToTheSimulatedFirmwareAndNamesBadInput) {
   EXPECT_NE(r.out.find("cannot open serial port"), std::string::npos) << r.out;
 }
 
+// Every firmware the driver speaks, against its simulator: --status alone,
+// and a full turn with the reported angles.
+TEST(Cli, TurntableTurnsOnceAroundWithEachProtocol) {
+  for (const std::string protocol : {"grbl", "horus", "fabscan"}) {
+    auto r = run_s2r("turntable --sim --protocol " + protocol + " --status");
+    ASSERT_EQ(r.code, 0) << r.out;
+    EXPECT_EQ(r.out.find("moved"), std::string::npos) << r.out;
+    r = run_s2r("turntable --sim --protocol " + protocol + " --home --turn 4");
+    ASSERT_EQ(r.code, 0) << protocol << "\n" << r.out;
+    EXPECT_NE(r.out.find("step 4/4 at 360.000 deg"), std::string::npos) << r.out;
+    EXPECT_NE(r.out.find("largest difference between asked and reported: 0.000 deg"), std::string::npos) << r.out;
+  }
+  EXPECT_NE(run_s2r("turntable --sim --protocol fabscan").out.find("fabscan:"), std::string::npos);
+  EXPECT_NE(run_s2r("turntable --sim --protocol horus").out.find("Horus 0.1"), std::string::npos);
+  auto r = run_s2r("turntable --sim --protocol marlin");
+  EXPECT_NE(r.code, 0) << r.out;
+  EXPECT_NE(r.out.find("marlin not in"), std::string::npos) << r.out;
+  r = run_s2r("capture --sim-camera --out /tmp/never");
+  EXPECT_NE(r.code, 0) << r.out;
+  EXPECT_NE(r.out.find("--turntable"), std::string::npos) << r.out;
+}
+
 TEST(Cli, EnvmapBuildsChecksAndNamesBadInput) {
   const fs::path dir = fs::temp_directory_path() / ("s2r_cli_env_" + std::to_string(getpid()));
   fs::remove_all(dir);
