@@ -4,6 +4,7 @@
 
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include "core/image.h"
 #include "core/result.h"
@@ -29,6 +30,12 @@ class Camera {
   virtual std::string describe() const = 0;
   virtual int width() const = 0;
   virtual int height() const = 0;
+  // What the device did differently from what was asked (a size it adjusted,
+  // a control it lacks): the capture writes these into the session's notes.
+  virtual const std::vector<std::string>& warnings() const {
+    static const std::vector<std::string> none;
+    return none;
+  }
 };
 
 }  // namespace s2r

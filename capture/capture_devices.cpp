@@ -344,6 +344,10 @@ Result<std::unique_ptr<CaptureRig>> make_hardware_capture(const std::string& cam
   auto table = open_turntable(turntable, table_choice(o, protocol));
   if (!table) return std::unexpected(table.error());
   rig->devices.header.turntable = TurntableInfo{protocol, (*table)->describe()};
+  // What the cameras granted differently from what was asked, in session.json's notes.
+  for (const auto* cam : {rig->devices.color.get(), rig->devices.depth.get()})
+    if (cam)
+      for (const auto& w : cam->warnings()) rig->devices.header.notes.push_back(w);
   rig->devices.table = std::move(*table);
   return rig;
 }

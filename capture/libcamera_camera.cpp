@@ -30,6 +30,7 @@ struct LibcameraCamera::State {
   std::deque<lc::Request*> completed;
   bool acquired = false, started = false;
   int width = 0, height = 0, stride = 0;
+  std::vector<std::string> warnings;
 
   // Runs in libcamera's thread: queue the request, never block.
   void on_complete(lc::Request* r) {
@@ -81,9 +82,12 @@ Result<std::unique_ptr<LibcameraCamera>> LibcameraCamera::open(const std::string
   // libcamera may adjust the size to what the pipeline can make (vimc: 640x480
   // becomes 636x480); the frames then have its size, and the user is told.
   if (validity == lc::CameraConfiguration::Adjusted &&
-      (int(sc.size.width) != width || int(sc.size.height) != height))
-    spdlog::warn("libcamera: camera '{}' cannot deliver {}x{}; it delivers {}x{} instead", s->camera->id(), width,
-                 height, sc.size.width, sc.size.height);
+      (int(sc.size.width) != width || int(sc.size.height) != height)) {
+    s->warnings.push_back("libcamera camera '" + s->camera->id() + "': asked for " + std::to_string(width) + "x" +
+                          std::to_string(height) + ", granted " + std::to_string(sc.size.width) + "x" +
+                          std::to_string(sc.size.height) + " (the nearest its pipeline makes)");
+    spdlog::warn("{}", s->warnings.back());
+  }
   if (sc.pixelFormat != lc::formats::RGB888)
     return fail(ErrorCode::unsupported, "libcamera: camera cannot deliver RGB888 (offers " + sc.pixelFormat.toString() + ")");
   if (s->camera->configure(s->config.get()) != 0) return fail("libcamera: configure failed for " + sc.toString());
@@ -168,6 +172,8 @@ Result<CapturedFrame> LibcameraCamera::grab() {
 
 std::string LibcameraCamera::describe() const { return "libcamera:" + (s_->camera ? s_->camera->id() : std::string("?")); }
 int LibcameraCamera::width() const { return s_->width; }
+const std::vector<std::string>& LibcameraCamera::warnings() const { return s_->warnings; }
+
 int LibcameraCamera::height() const { return s_->height; }
 
 }  // namespace s2r

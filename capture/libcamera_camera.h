@@ -23,6 +23,7 @@ class LibcameraCamera : public Camera {
   std::string describe() const override;
   int width() const override;
   int height() const override;
+  const std::vector<std::string>& warnings() const override;
 
   struct State;
 

@@ -42,7 +42,7 @@ class V4l2Camera : public Camera {
   int height() const override { return height_; }
   uint32_t format() const { return fourcc_; }
   const std::vector<uint32_t>& formats() const { return formats_; }
-  const std::vector<std::string>& warnings() const { return warnings_; }
+  const std::vector<std::string>& warnings() const override { return warnings_; }
   const std::string& card() const { return card_; }
 
  private:
