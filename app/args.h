@@ -48,7 +48,7 @@ struct DevicesArgs {};
 // s2r turntable: talk to a GRBL turntable by hand (or to the simulated one).
 struct TurntableArgs {
   std::string port, protocol = "grbl";
-  bool sim = false, home = false, unlock = false, status = false;
+  bool sim = false, home = false, unlock = false, status = false, serve = false;
   int baud = 115200, turn = 0, steps_per_turn = 3200;
   std::vector<double> moves;
   std::string transcript;

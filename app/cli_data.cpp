@@ -156,6 +156,9 @@ void add_turntable(CLI::App& app, Chosen& chosen) {
   sub->add_option("--steps-per-turn", a->steps_per_turn, "fabscan: motor steps a full turn of the table")
       ->capture_default_str()->check(CLI::PositiveNumber);
   sub->add_option("--transcript", a->transcript, "append every line both ways to this file");
+  sub->add_flag("--serve", a->serve, "with --sim: print the simulated board's port and keep it running until Ctrl-C, "
+                                     "for another program (s2r capture --turntable PORT) to talk to")
+      ->needs(sim);
   sub->callback([a, &chosen] {
     if (a->port.empty() && !a->sim) throw CLI::ValidationError("turntable", "give a serial port or --sim");
     chosen = a;

@@ -65,6 +65,8 @@ void add_export(CLI::App& app, Chosen& chosen) {
   sub->add_option("--cell", a->gltf.max_cell, "gltf: texels per triangle cell side at most")->capture_default_str();
   sub->add_option("--threads", a->gltf.threads, "gltf: baking threads (0 = all cores)")->capture_default_str();
   sub->add_option("--background", a->background, "web: white, black or R,G,B (0-255 levels); default black, as s2r render");
+  sub->add_option("--budget-mib", a->web.budget_mib, "web: the camera images' payload at most, MiB (reduced by an integer "
+                                                      "factor above it)")->capture_default_str();
   sub->add_option("--report", a->report, "report path (default OUT/report.json; gltf: OUT's name + .report.json)");
   sub->callback([a, &chosen] { chosen = a; });
 }

@@ -1,6 +1,7 @@
 // Runs the subcommands that make or transform data: synth, import, inspect,
 // devices, capture, calibrate (their flags: app/cli_data.cpp).
 #include <chrono>
+#include <thread>
 #include <cstdio>
 #include <csignal>
 
@@ -245,6 +246,17 @@ int run(const TurntableArgs& a) {
     if (!b) return error(b.error().message);
     board = std::move(*b);
     port = board.port();
+  }
+  if (a.serve) {
+    struct sigaction sa {};
+    sa.sa_handler = on_stop_signal;
+    sigaction(SIGINT, &sa, nullptr);
+    sigaction(SIGTERM, &sa, nullptr);
+    std::printf("%s\n", port.c_str());
+    std::fflush(stdout);
+    std::fprintf(stderr, "turntable: the simulated %s board answers on %s until Ctrl-C\n", a.protocol.c_str(), port.c_str());
+    while (!g_stop) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    return 0;
   }
   TurntableChoice c;
   c.protocol = a.protocol;

@@ -72,7 +72,8 @@ int run(const ReconstructArgs& a) {
 
 int run(const ExportArgs& a) {
   static const FlagNames flags = {{"max_points", "--max-points"}, {"out", "--out"},     {"format", "format"},
-                                  {"atlas_max", "--atlas"},       {"max_cell", "--cell"}, {"mesh", "--mesh"}};
+                                  {"atlas_max", "--atlas"},       {"max_cell", "--cell"}, {"mesh", "--mesh"},
+                                  {"budget_mib", "--budget-mib"}};
   Result<Report> r;
   fs::path report = a.report;
   if (a.format == "web") {

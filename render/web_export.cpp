@@ -69,6 +69,53 @@ Result<Report> export_web(const WebExportJob& job) {
     W = std::max(W, tex[i].rgba.width);
     H = std::max(H, tex[i].rgba.height);
   }
+  if (!(job.budget_mib > 0)) return fail(ErrorCode::invalid, "budget_mib: must be > 0");
+  // The payload budget: the smallest integer reduction of every camera image that fits.
+  int factor = 1;
+  const double budget = job.budget_mib * 1048576.0;
+  auto bytes_at = [&](int f) { return 8.0 * ((W + f - 1) / f) * double((H + f - 1) / f) * layers; };
+  while (bytes_at(factor) > budget && factor < 64) ++factor;
+  if (bytes_at(factor) > budget)
+    return fail(ErrorCode::invalid, "budget_mib: " + std::to_string(job.budget_mib) + " MiB cannot hold " + std::to_string(layers) +
+                                        " camera images even at 1/64 of their size");
+  std::vector<Intrinsics> intrinsics(n);
+  for (size_t i = 0; i < n; ++i) intrinsics[i] = model->cameras[i].intrinsics;
+  if (factor > 1) {
+    for (size_t i = 0; i < n; ++i) {
+      if (layer[i] < 0) continue;
+      const RgbazImage& t = tex[i];
+      const int w = (t.rgba.width + factor - 1) / factor, h = (t.rgba.height + factor - 1) / factor;
+      RgbazImage r{ImageU8(w, h, 4, 0), ImageF(w, h, 1, 0.f)};
+      for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x) {
+          int sum[4] = {0, 0, 0, 0}, count = 0;
+          float nearest = 0;
+          for (int v = y * factor; v < std::min(t.rgba.height, (y + 1) * factor); ++v)
+            for (int u = x * factor; u < std::min(t.rgba.width, (x + 1) * factor); ++u) {
+              for (int c = 0; c < 4; ++c) sum[c] += t.rgba.at(u, v, c);
+              ++count;
+              const float d = t.distance.at(u, v);
+              if (d > 0 && (nearest == 0 || d < nearest)) nearest = d;
+            }
+          for (int c = 0; c < 4; ++c) r.rgba.at(x, y, c) = static_cast<uint8_t>((sum[c] + count / 2) / count);
+          r.distance.at(x, y) = nearest;
+        }
+      tex[i] = std::move(r);
+      // Pixel centres at integers: pixel x' covers x in [f x', f x' + f - 1].
+      Intrinsics& K = intrinsics[i];
+      K.fx /= factor;
+      K.fy /= factor;
+      K.cx = (K.cx + 0.5) / factor - 0.5;
+      K.cy = (K.cy + 0.5) / factor - 0.5;
+      K.width = w;
+      K.height = h;
+    }
+    W = (W + factor - 1) / factor;
+    H = (H + factor - 1) / factor;
+    rep.warnings.push_back("camera images reduced to 1/" + std::to_string(factor) + " to fit the " +
+                           std::to_string(static_cast<int>(job.budget_mib)) + "-MiB budget");
+  }
+  rep.counts["camera_image_reduction"] = factor;
   if (layers == 0)
     return fail(ErrorCode::not_found, "model '" + job.model.string() +
                                           "' has no camera images (reconstructed with --no-textures): the web viewer draws billboards from them");
@@ -86,7 +133,7 @@ Result<Report> export_web(const WebExportJob& job) {
   json cams = json::array();
   for (size_t i = 0; i < n; ++i) {
     const ModelCamera& c = model->cameras[i];
-    const Intrinsics& K = c.intrinsics;
+    const Intrinsics& K = intrinsics[i];
     const Eigen::Matrix4f cfw = c.world_from_camera.inverse().matrix().cast<float>();
     std::vector<float> gpu(cfw.data(), cfw.data() + 16);  // column-major, as GLSL's mat4
     const Eigen::Vector3d centre = c.world_from_camera.translation();

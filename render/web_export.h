@@ -14,7 +14,9 @@
 //                                   float32 distances (one pixel of silhouette
 //                                   extension, as s2r render loads them), each
 //                                   layer W x H of the largest camera, the
-//                                   image in its top-left corner
+//                                   image in its top-left corner; reduced by
+//                                   an integer factor where they exceed the
+//                                   budget
 //
 // Written into a temporary folder beside DIR and renamed into place whole;
 // DIR must be new or empty.
@@ -31,6 +33,12 @@ namespace s2r {
 struct WebExportJob {
   std::filesystem::path model, out;
   std::array<float, 3> background{0.f, 0.f, 0.f};
+  // The camera images' payload at most (colour and distances, 8 bytes a
+  // pixel): above it every camera image is reduced by the smallest integer
+  // factor that fits (colour averaged over each block, distance the nearest
+  // surface in it), its intrinsics scaled to match. The default keeps a
+  // 200-photo 12-MP capture under the model's own 2-GiB budget.
+  double budget_mib = 1536;
   int threads = 0;
 };
 
