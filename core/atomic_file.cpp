@@ -141,4 +141,33 @@ Result<std::string> read_file(const fs::path& path) {
   return ss.str();
 }
 
+Status check_new_folder(const fs::path& out) {
+  if (out.empty()) return fail(ErrorCode::invalid, "out: no folder given");
+  std::error_code ec;
+  if (fs::exists(out, ec) && (!fs::is_directory(out, ec) || !fs::is_empty(out, ec)))
+    return fail(ErrorCode::invalid, "out: '" + out.string() + "' exists and is not empty: choose a new folder (nothing was written)");
+  return {};
+}
+
+Status write_folder_atomic(const fs::path& out_path, const std::function<Status(const fs::path& tmp)>& fill) {
+  if (auto st = check_new_folder(out_path); !st) return st;
+  const fs::path out = fs::absolute(out_path).lexically_normal();
+  const fs::path tmp = out.parent_path() / ("." + out.filename().string() + ".partial-" + std::to_string(getpid()));
+  std::error_code ec;
+  fs::remove_all(tmp, ec);
+  fs::create_directories(tmp, ec);
+  if (ec) return fail(ErrorCode::io, "cannot create " + tmp.string() + ": " + ec.message());
+  if (auto st = fill(tmp); !st) {
+    fs::remove_all(tmp, ec);
+    return st;
+  }
+  if (fs::exists(out, ec)) fs::remove(out, ec);  // an empty folder
+  fs::rename(tmp, out, ec);
+  if (ec) {
+    fs::remove_all(tmp, ec);
+    return fail(ErrorCode::io, "cannot move " + tmp.string() + " into " + out.string() + ": " + ec.message());
+  }
+  return sync_directory(out.parent_path());
+}
+
 }  // namespace s2r

@@ -36,4 +36,12 @@ void set_write_fault_hook(std::function<int(const std::filesystem::path&)> hook)
 // fsync a folder so that a rename inside it is durable.
 Status sync_directory(const std::filesystem::path& dir);
 
+// A whole folder written atomically (the exports): `out` must not exist or be
+// empty (else an error naming it, "out: ..."); `fill(tmp)` writes into a
+// temporary folder beside it, which is renamed into place when `fill`
+// succeeds and removed when it fails, so a reader sees all of it or nothing.
+Status check_new_folder(const std::filesystem::path& out);
+Status write_folder_atomic(const std::filesystem::path& out,
+                           const std::function<Status(const std::filesystem::path& tmp)>& fill);
+
 }  // namespace s2r

@@ -314,11 +314,8 @@ Result<Report> export_session(const ExportJob& job) {
   rep.params["format"] = job.format;
   if (job.format != "colmap" && job.format != "nerfstudio")
     return fail(ErrorCode::invalid, "format: '" + job.format + "' (choose colmap or nerfstudio)");
-  if (job.out.empty()) return fail(ErrorCode::invalid, "out: no folder given");
   if (job.max_points < 0) return fail(ErrorCode::invalid, "max_points: must be >= 0");
-  std::error_code ec;
-  if (fs::exists(job.out, ec) && (!fs::is_directory(job.out, ec) || !fs::is_empty(job.out, ec)))
-    return fail(ErrorCode::invalid, "out: '" + job.out.string() + "' exists and is not empty: choose a new folder (nothing was written)");
+  if (auto st = check_new_folder(job.out); !st) return std::unexpected(st.error());
   auto s = load_session(job.session);
   if (!s) return fail_with_context(s.error(), "session");
   auto poses = resolve_frame_poses(*s, job.poses, job.calibration);
@@ -353,31 +350,16 @@ Result<Report> export_session(const ExportJob& job) {
   if (frames.empty())
     return fail(ErrorCode::invalid, "session '" + job.session.string() + "': no frame has a colour image, a pose and intrinsics");
 
-  const fs::path out = fs::absolute(job.out).lexically_normal();
-  const fs::path tmp = out.parent_path() / ("." + out.filename().string() + ".partial-" + std::to_string(getpid()));
-  fs::remove_all(tmp, ec);
-  fs::create_directories(tmp, ec);
-  if (ec) return fail(ErrorCode::io, "cannot create " + tmp.string() + ": " + ec.message());
-  auto written = [&]() -> Status {
+  auto written = write_folder_atomic(job.out, [&](const fs::path& tmp) -> Status {
     for (const auto& u : frames)
       if (auto st = copy_into(s->path_of(u.frame->color), tmp / "images" / u.image); !st) return st;
-    if (job.format == "colmap") return write_colmap(*s, frames, job, tmp, rep);
-    return write_nerfstudio(*s, frames, tmp, rep);
-  }();
-  rep.counts["frames"] = static_cast<double>(frames.size());
-  rep.seconds = sw.seconds();
-  if (written) written = rep.write(tmp / "report.json");
-  if (!written) {
-    fs::remove_all(tmp, ec);
-    return std::unexpected(written.error());
-  }
-  if (fs::exists(out, ec)) fs::remove(out, ec);  // an empty folder
-  fs::rename(tmp, out, ec);
-  if (ec) {
-    fs::remove_all(tmp, ec);
-    return fail(ErrorCode::io, "cannot move the export into " + out.string() + ": " + ec.message());
-  }
-  (void)sync_directory(out.parent_path());
+    auto st = job.format == "colmap" ? write_colmap(*s, frames, job, tmp, rep) : write_nerfstudio(*s, frames, tmp, rep);
+    if (!st) return st;
+    rep.counts["frames"] = static_cast<double>(frames.size());
+    rep.seconds = sw.seconds();
+    return rep.write(tmp / "report.json");
+  });
+  if (!written) return std::unexpected(written.error());
   return rep;
 }
 

@@ -31,10 +31,7 @@ Result<Report> export_web(const WebExportJob& job) {
   rep.params["format"] = std::string("web");
   for (float c : job.background)
     if (!(c >= 0 && c <= 1)) return fail(ErrorCode::invalid, "background: each channel must be in [0, 1]");
-  if (job.out.empty()) return fail(ErrorCode::invalid, "out: no folder given");
-  std::error_code ec;
-  if (fs::exists(job.out, ec) && (!fs::is_directory(job.out, ec) || !fs::is_empty(job.out, ec)))
-    return fail(ErrorCode::invalid, "out: '" + job.out.string() + "' exists and is not empty: choose a new folder (nothing was written)");
+  if (auto st = check_new_folder(job.out); !st) return std::unexpected(st.error());
   auto model = load_model(job.model);
   if (!model) return fail_with_context(model.error(), "model");
   if (model->facets.empty()) return fail(ErrorCode::invalid, "model '" + job.model.string() + "' has no facets to draw");
@@ -180,18 +177,6 @@ Result<Report> export_web(const WebExportJob& job) {
       {"cameras", cams},
       {"payloads", pl}};
 
-  const fs::path out = fs::absolute(job.out).lexically_normal();
-  const fs::path tmp = out.parent_path() / ("." + out.filename().string() + ".partial-" + std::to_string(getpid()));
-  fs::remove_all(tmp, ec);
-  fs::create_directories(tmp, ec);
-  if (ec) return fail(ErrorCode::io, "cannot create " + tmp.string() + ": " + ec.message());
-  auto written = [&]() -> Status {
-    if (auto st = write_file_atomic(tmp / "index.html", web_index_html()); !st) return st;
-    if (auto st = write_file_atomic(tmp / "viewer.js", web_viewer_js()); !st) return st;
-    for (const auto& [name, bytes] : payloads)
-      if (auto st = write_file_atomic(tmp / (std::string(name) + ".bin"), *bytes); !st) return st;
-    return write_file_atomic(tmp / "model.json", header.dump(1) + "\n");
-  }();
   double total = 0;
   for (const auto& [name, bytes] : payloads) {
     rep.counts[std::string("bytes_") + name] = static_cast<double>(bytes->size());
@@ -201,19 +186,16 @@ Result<Report> export_web(const WebExportJob& job) {
   rep.counts["facets"] = static_cast<double>(model->facets.size());
   rep.counts["cameras"] = layers;
   rep.skipped["cameras_without_image"] = static_cast<double>(n - size_t(layers));
-  rep.seconds = sw.seconds();
-  if (written) written = rep.write(tmp / "report.json");
-  if (!written) {
-    fs::remove_all(tmp, ec);
-    return std::unexpected(written.error());
-  }
-  if (fs::exists(out, ec)) fs::remove(out, ec);
-  fs::rename(tmp, out, ec);
-  if (ec) {
-    fs::remove_all(tmp, ec);
-    return fail(ErrorCode::io, "cannot move the export into " + out.string() + ": " + ec.message());
-  }
-  (void)sync_directory(out.parent_path());
+  auto written = write_folder_atomic(job.out, [&](const fs::path& tmp) -> Status {
+    if (auto st = write_file_atomic(tmp / "index.html", web_index_html()); !st) return st;
+    if (auto st = write_file_atomic(tmp / "viewer.js", web_viewer_js()); !st) return st;
+    for (const auto& [name, bytes] : payloads)
+      if (auto st = write_file_atomic(tmp / (std::string(name) + ".bin"), *bytes); !st) return st;
+    if (auto st = write_file_atomic(tmp / "model.json", header.dump(1) + "\n"); !st) return st;
+    rep.seconds = sw.seconds();
+    return rep.write(tmp / "report.json");
+  });
+  if (!written) return std::unexpected(written.error());
   return rep;
 }
 
