@@ -64,7 +64,7 @@ void add_export(CLI::App& app, Chosen& chosen) {
   sub->add_option("--atlas", a->gltf.atlas_max, "gltf: the texture atlas's side at most, texels")->capture_default_str();
   sub->add_option("--cell", a->gltf.max_cell, "gltf: texels per triangle cell side at most")->capture_default_str();
   sub->add_option("--threads", a->gltf.threads, "gltf: baking threads (0 = all cores)")->capture_default_str();
-  sub->add_option("--background", a->background, "web: white, black or R,G,B (0-255 levels); default black, as s2r render");
+  sub->add_option("--background", a->background, "web: white, black or R,G,B (0-255 levels); default: the model's own background (the capture's, e.g. white for NeRF-synthetic), else black, as s2r render");
   sub->add_option("--budget-mib", a->web.budget_mib, "web: the camera images' payload at most, MiB (reduced by an integer "
                                                       "factor above it)")->capture_default_str();
   sub->add_option("--report", a->report, "report path (default OUT/report.json; gltf: OUT's name + .report.json)");

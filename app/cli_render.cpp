@@ -86,7 +86,7 @@ void add_render(CLI::App& app, Chosen& chosen) {
   sub->add_option("--view", a->view, "session frame whose camera draws the image (0-based)");
   sub->add_option("--pose", job.view_file, "view file: {format s2r.view, intrinsics, world_from_camera}");
   sub->add_option("--scale", job.scale, "image size relative to the camera's")->capture_default_str();
-  sub->add_option("--background", a->background, "white, black or R,G,B (0-255 levels); default: black");
+  sub->add_option("--background", a->background, "white, black or R,G,B (0-255 levels); default: the model's own background (the capture's, e.g. white for NeRF-synthetic), else black");
   sub->add_option("--report", a->report, "report path (default: beside --out)");
   add_draw_options(sub, a->draw);
   add_source_options(sub, job.source);

@@ -13,6 +13,7 @@
 // Loading rejects a truncated or inconsistent model, naming file and field.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <filesystem>
 #include <optional>
@@ -88,6 +89,10 @@ struct Model {
   std::optional<std::string> patch_mesh;  // relative PLY path
   std::optional<std::string> surface_mesh;  // relative PLY path: the fused surface
   std::optional<std::string> environment;  // relative path
+  // The capture's background (RGB in [0, 1]): the one its photos were
+  // composited on (white for NeRF-synthetic) or the fit's backdrop colour.
+  // Drawing the model defaults to it; empty: black.
+  std::optional<std::array<float, 3>> background;
   SplatLayout splat_layout;
   std::vector<float> splats;  // fitted billboards, splat_layout.stride() floats each; empty when not fitted
   size_t splat_count() const { return splats.size() / size_t(splat_layout.stride()); }

@@ -126,6 +126,7 @@ Status save_model(const fs::path& dir, const Model& m) {
   if (m.patch_mesh) doc["patch_mesh"] = *m.patch_mesh;
   if (m.surface_mesh) doc["surface_mesh"] = *m.surface_mesh;
   if (m.environment) doc["environment"] = *m.environment;
+  if (m.background) doc["background"] = {(*m.background)[0], (*m.background)[1], (*m.background)[2]};
   // Payloads first, header last: a model.json always describes complete
   // payloads. The payloads are written at once (their flushes to disk
   // overlap); the first failure is reported.
@@ -176,6 +177,17 @@ Result<Model> load_model(const fs::path& dir) {
         if (!fs::exists(*p)) c.error("texture", "'" + mc.texture + "': file not found");
       }
       m.cameras.push_back(mc);
+    }
+    if (doc.has("background")) {
+      FieldReader b = doc.at("background");
+      if (!b.raw().is_array() || b.raw().size() != 3) doc.error("background", "must be [r, g, b]");
+      std::array<float, 3> bg{};
+      for (size_t i = 0; i < 3; ++i) {
+        const auto& v = b.raw()[i];
+        if (!v.is_number() || !(v.get<double>() >= 0 && v.get<double>() <= 1)) b.error("each channel must be a number in [0, 1]");
+        bg[i] = v.get<float>();
+      }
+      m.background = bg;
     }
     FieldReader pay = doc.at("payloads");
     const uint64_t nf = static_cast<uint64_t>(pay.at("facets").integer("records"));

@@ -711,6 +711,7 @@ Status fit_step(const ReconstructJob& job, const Session& s, const std::vector<V
   };
   model.splat_layout = layout;
   model.splats = records(splats);
+  model.background = o.background;
   SweepTable curve;
   curve.columns = {"seconds", "epoch", "scale", "train_psnr_db", "facets"};
   for (const auto& p : fit->curve) curve.rows.push_back({p.seconds, double(p.epoch), double(p.scale), p.train_psnr_db, double(p.splats)});
@@ -819,6 +820,7 @@ Result<ReconstructSummary> run_reconstruct_job(const ReconstructJob& job) {
   Model model;
   model.voxel_size_m = w0;
   model.session = in->s.name;
+  model.background = in->s.background;
   model.cameras = model_cameras(*views, job.textures);
   // Every camera's depth goes into its texture; without textures each one is
   // made when the facets' visibility test comes to it.

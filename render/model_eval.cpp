@@ -185,7 +185,8 @@ Result<RenderSummary> run_render_job(const RenderJob& job) {
   Report& rep = sum.report;
   rep.stage = "render";
   DrawOptions draw = job.draw;
-  if (job.background) std::copy(job.background->begin(), job.background->end(), draw.background);
+  // The background asked for, else the model's own (the capture's), else black.
+  if (const auto& bg = job.background ? job.background : r->model.background) std::copy(bg->begin(), bg->end(), draw.background);
   PreparedEnvironment env;
   if (job.environment) {
     auto e = prepare_environment(*job.environment, r->model.bounds);

@@ -511,6 +511,43 @@ TEST(Fitted, AModelWithoutTexturesDrawsOnlyItsFit) {
   EXPECT_TRUE(g.renderer->draw(arc_camera(0), o, *fb));
 }
 
+// A model keeps its capture's background (white for NeRF-synthetic); render
+// draws on it unless asked for another, and a bad one does not load.
+TEST(Fitted, RenderDefaultsToTheModelsBackground) {
+  TestModel t = make_model("fitted_background", kArc);
+  put_splats(t.model, square_splats());
+  t.model.background = std::array<float, 3>{1.f, 1.f, 1.f};
+  ASSERT_TRUE(save_model(t.dir, t.model));
+  auto loaded = load_model(t.dir);
+  ASSERT_TRUE(loaded) << loaded.error().message;
+  ASSERT_TRUE(loaded->background);
+  EXPECT_EQ(*loaded->background, (std::array<float, 3>{1.f, 1.f, 1.f}));
+  ASSERT_TRUE(save_view_file(t.dir / "view.json", arc_camera(0)));
+  RenderJob job;
+  job.model = t.dir;
+  job.view_file = t.dir / "view.json";
+  job.draw.geometry = DrawOptions::Geometry::kSplats;
+  auto corner = [&](const RenderJob& j) {
+    auto r = run_render_job(j);
+    EXPECT_TRUE(r) << (r ? "" : r.error().message);
+    auto img = read_image_u8(j.out);
+    return img ? std::array<int, 3>{img->at(0, 0, 0), img->at(0, 0, 1), img->at(0, 0, 2)} : std::array<int, 3>{-1, -1, -1};
+  };
+  job.out = t.dir / "default.png";
+  EXPECT_EQ(corner(job), (std::array<int, 3>{255, 255, 255}));
+  job.out = t.dir / "asked.png";
+  job.background = std::array<float, 3>{0.f, 0.f, 0.f};
+  EXPECT_EQ(corner(job), (std::array<int, 3>{0, 0, 0}));
+  std::string doc = *read_file(t.dir / "model.json");
+  const auto at = doc.find("\"background\"");
+  ASSERT_NE(at, std::string::npos);
+  doc.insert(doc.find('[', at) + 1, "2.0, ");
+  ASSERT_TRUE(write_file_atomic(t.dir / "model.json", doc));
+  auto bad = load_model(t.dir);
+  ASSERT_FALSE(bad);
+  EXPECT_NE(bad.error().message.find("background"), std::string::npos) << bad.error().message;
+}
+
 TEST(ViewFile, RoundTripsAndRejectsNaN) {
   const fs::path p = fs::path(testing::TempDir()) / "s2r_view.json";
   const ViewCamera v = arc_camera(12);

@@ -258,6 +258,7 @@ Result<Report> run_viewer(const ViewerOptions& opt) {
   state.renderer = renderer->get();
   state.orbit = make_orbit(*state.model);
   state.draw = opt.draw;
+  if (const auto& bg = state.model->background) std::copy(bg->begin(), bg->end(), state.draw.background);
   Report rep;
   rep.stage = "view";
   PreparedEnvironment env;

@@ -29,8 +29,9 @@ Result<Report> export_web(const WebExportJob& job) {
   Report rep;
   rep.stage = "export";
   rep.params["format"] = std::string("web");
-  for (float c : job.background)
-    if (!(c >= 0 && c <= 1)) return fail(ErrorCode::invalid, "background: each channel must be in [0, 1]");
+  if (job.background)
+    for (float c : *job.background)
+      if (!(c >= 0 && c <= 1)) return fail(ErrorCode::invalid, "background: each channel must be in [0, 1]");
   if (auto st = check_new_folder(job.out); !st) return std::unexpected(st.error());
   auto model = load_model(job.model);
   if (!model) return fail_with_context(model.error(), "model");
@@ -160,6 +161,7 @@ Result<Report> export_web(const WebExportJob& job) {
   json pl = json::array();
   for (const auto& [name, bytes] : payloads)
     pl.push_back({{"name", name}, {"file", std::string(name) + ".bin"}, {"bytes", bytes->size()}});
+  const std::array<float, 3> bg = job.background.value_or(model->background.value_or(std::array<float, 3>{0.f, 0.f, 0.f}));
   json header = {
       {"format", "s2r.web"},
       {"version", 1},
@@ -167,7 +169,7 @@ Result<Report> export_web(const WebExportJob& job) {
       {"voxel_size_m", model->voxel_size_m},
       {"bounds", {{"min", vec3(model->bounds.min())}, {"max", vec3(model->bounds.max())}}},
       {"up", {0, 0, 1}},
-      {"background", {job.background[0], job.background[1], job.background[2]}},
+      {"background", {bg[0], bg[1], bg[2]}},
       {"texture_width", W},
       {"texture_height", H},
       {"layers", layers},

@@ -24,6 +24,7 @@
 
 #include <array>
 #include <filesystem>
+#include <optional>
 
 #include "core/report.h"
 #include "core/result.h"
@@ -32,7 +33,8 @@ namespace s2r {
 
 struct WebExportJob {
   std::filesystem::path model, out;
-  std::array<float, 3> background{0.f, 0.f, 0.f};
+  // RGB in [0, 1]; empty: the model's own background, else black.
+  std::optional<std::array<float, 3>> background;
   // The camera images' payload at most (colour and distances, 8 bytes a
   // pixel): above it every camera image is reduced by the smallest integer
   // factor that fits (colour averaged over each block, distance the nearest
