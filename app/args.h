@@ -94,6 +94,7 @@ struct ReconstructArgs {
 struct DrawArgs {
   DrawOptions d;
   std::string geometry = "billboards";
+  std::string fitted_pass = "auto";
   std::string gaze;  // "" off, "centre", or X,Y pixels
 };
 // Backdrop, glossy floor and props around a model (render, view).

@@ -26,6 +26,10 @@ void add_draw_options(CLI::App* sub, DrawArgs& a) {
   DrawOptions& d = a.d;
   sub->add_option("--geometry", a.geometry, "billboards | mesh (the octree's patch mesh, textured) | surface (the fused surface mesh, textured) | fitted (the billboards fitted to the photos, reconstruct --fit)")
       ->check(CLI::IsMember({"billboards", "mesh", "surface", "fitted"}))->capture_default_str();
+  sub->add_option("--fitted-pass", a.fitted_pass, "fitted: where the billboards are composited: cpu (front to back, each pixel "
+                  "stopping at its first opaque layer), gl, or auto (cpu when OpenGL itself runs on the CPU: llvmpipe, "
+                  "softpipe, SwiftShader; else gl)")
+      ->check(CLI::IsMember({"auto", "cpu", "gl"}))->capture_default_str();
   sub->add_option("--cameras", d.selection.cameras, "k: input cameras blended per facet (1-4)")->check(CLI::Range(1, 4))->capture_default_str();
   sub->add_flag_callback("--no-clip", [&d] { d.depth_clip = false; }, "billboards without depth clipping (the paper's comparison)");
   sub->add_option("--pixel-error", d.pixel_error, "clip widens where a texel stays within this many pixels (0: fixed clip)")->capture_default_str();

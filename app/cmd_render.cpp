@@ -45,6 +45,9 @@ std::optional<Eigen::Vector3d> vector3(const std::string& s) {
 // The drawing options with the two text flags parsed; an error names the flag.
 Result<DrawOptions> draw_options(const DrawArgs& a) {
   DrawOptions d = a.d;
+  d.fitted_pass = a.fitted_pass == "cpu"  ? DrawOptions::FittedPass::kCpu
+                  : a.fitted_pass == "gl" ? DrawOptions::FittedPass::kGl
+                                          : DrawOptions::FittedPass::kAuto;
   d.geometry = a.geometry == "mesh"      ? DrawOptions::Geometry::kMesh
                : a.geometry == "surface" ? DrawOptions::Geometry::kSurface
                : a.geometry == "fitted"  ? DrawOptions::Geometry::kSplats

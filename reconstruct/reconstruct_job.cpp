@@ -27,6 +27,7 @@
 #include "reconstruct/octree.h"
 #include "reconstruct/poses.h"
 #include "reconstruct/rig_eval.h"
+#include "reconstruct/splat_composite.h"
 
 namespace s2r {
 namespace fs = std::filesystem;
@@ -711,6 +712,7 @@ Status fit_step(const ReconstructJob& job, const Session& s, const std::vector<V
   };
   model.splat_layout = layout;
   model.splats = records(splats);
+  order_splats_spatially(model.splats, layout.stride());  // a screen tile's facets near each other in memory
   model.background = o.background;
   SweepTable curve;
   curve.columns = {"seconds", "epoch", "scale", "train_psnr_db", "facets"};

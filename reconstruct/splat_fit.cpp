@@ -19,9 +19,9 @@ namespace s2r {
 namespace {
 
 constexpr int kTile = 16;
-constexpr float kAlphaMin = 1.f / 255.f;
-constexpr float kAlphaMax = 0.99f;
-constexpr float kStopT = 1e-4f;
+constexpr float kAlphaMin = kSplatAlphaMin;
+constexpr float kAlphaMax = kSplatAlphaMax;
+constexpr float kStopT = kSplatStopT;
 constexpr float kCut = 3.f;  // the footprint is cut at 3 sigma
 
 // SH constants in 3DGS's order.

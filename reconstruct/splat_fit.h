@@ -44,6 +44,11 @@
 namespace s2r {
 
 inline constexpr int kMaxShCoeffs = 9;  // degree 2
+// The image formation's limits (the fit, the display compositor and the GL
+// pass alike): alpha under the first draws nothing, alpha is capped at the
+// second, and a pixel is finished once its transmittance would fall under
+// the third.
+inline constexpr float kSplatAlphaMin = 1.f / 255.f, kSplatAlphaMax = 0.99f, kSplatStopT = 1e-4f;
 
 // One fitted facet (the model's splats.bin record is this, 60 + 4 * 27 bytes).
 struct Splat {

@@ -108,6 +108,7 @@ ImageU8 rgb_of(const ImageU8& rgba) {
 void add_selection(Report& rep, const DrawStats& st, const std::string& suffix) {
   rep.counts["facets_drawn" + suffix] = double(st.selection.drawn);
   rep.counts["frame_ms" + suffix] = st.frame_ms;
+  if (st.fitted_on_cpu) rep.params["fitted_pass"] = std::string("cpu");
   rep.counts["selection_ms" + suffix] = st.selection.seconds * 1e3;
   rep.skipped["facets_outside_frustum" + suffix] = double(st.selection.outside_frustum);
   rep.skipped["facets_back_facing" + suffix] = double(st.selection.back_facing);
@@ -231,6 +232,8 @@ std::vector<EvalMethod> eval_methods(const EvalJob& job, const ModelRenderer& re
     fitted.draw.geometry = DrawOptions::Geometry::kSplats;
     methods.push_back(fitted);
   }
+  // A model reconstructed without camera images draws only its fit.
+  if (!renderer.has_textures()) return methods;
   methods.push_back({"billboards", job.draw});
   methods.back().draw.mesh_reliability = 0;
   if (job.draw.mesh_reliability > 0 && renderer.has_mesh()) methods.push_back({"hybrid", job.draw});
@@ -462,6 +465,7 @@ Result<EvalSummary> run_eval_job(const EvalJob& job) {
   EvalSummary sum;
   Report& rep = sum.report;
   rep.stage = "eval";
+  if (!r->renderer->has_textures()) rep.skipped["methods_without_camera_images"] = 1;
   SweepTable table;
   table.columns = {"frame", "held_out", "mask_pixels"};
   for (const auto& m : methods)

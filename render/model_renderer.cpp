@@ -16,6 +16,7 @@
 #include "core/report.h"
 #include "render/gl_program.h"
 #include "render/glossy_renderer.h"
+#include "reconstruct/splat_composite.h"
 #include "reconstruct/splat_fit.h"
 
 namespace s2r {
@@ -333,6 +334,24 @@ void main() {
 }
 )";
 
+// The CPU pass's image (premultiplied colour and transmittance, rows top to
+// bottom) laid over the target: one triangle over the whole viewport.
+const char* kCompositedVertex = R"(
+void main() {
+  gl_Position = vec4(float((gl_VertexID & 1) << 2) - 1.0, float((gl_VertexID & 2) << 1) - 1.0, 0.0, 1.0);
+}
+)";
+
+const char* kCompositedFragment = R"(
+uniform sampler2D u_image;
+out vec4 frag;
+void main() {
+  ivec2 size = textureSize(u_image, 0);
+  vec4 c = texelFetch(u_image, ivec2(gl_FragCoord.x, size.y - 1 - int(gl_FragCoord.y)), 0);
+  frag = vec4(c.rgb, 1.0 - c.a);
+}
+)";
+
 std::string shader(std::initializer_list<const char*> parts) {
   std::string s = "#version 430 core\n";
   for (const char* p : parts) s += p;
@@ -485,7 +504,7 @@ double camera_field_r2(const Intrinsics& K) { return max_field_r2(K); }
 void fill_silhouette_distance(ImageF& distance) { extend_silhouette_distance(distance); }
 
 struct ModelRenderer::Programs {
-  GlProgram billboard, mesh, splat;
+  GlProgram billboard, mesh, splat, composited;
 };
 
 Result<std::unique_ptr<ModelRenderer>> ModelRenderer::create(const Model& model, const std::filesystem::path& dir,
@@ -502,11 +521,20 @@ Result<std::unique_ptr<ModelRenderer>> ModelRenderer::create(const Model& model,
   if (!me) return std::unexpected(me.error());
   auto sp = GlProgram::build(shader({kCommon, kViewUniforms, kSplatVertex}), shader({kSplatFragment}));
   if (!sp) return std::unexpected(sp.error());
-  r->programs_.reset(new Programs{std::move(*bb), std::move(*me), std::move(*sp)});
+  auto co = GlProgram::build(shader({kCompositedVertex}), shader({kCompositedFragment}));
+  if (!co) return std::unexpected(co.error());
+  r->programs_.reset(new Programs{std::move(*bb), std::move(*me), std::move(*sp), std::move(*co)});
+  r->threads_ = threads;
+  const std::string gl_renderer = reinterpret_cast<const char*>(glGetString(GL_RENDERER));
+  for (const char* sw : {"llvmpipe", "softpipe", "SwiftShader", "swrast"})
+    if (gl_renderer.find(sw) != std::string::npos) r->software_gl_ = true;
   if (!model.splats.empty()) {
+    order_splats_spatially(r->model_.splats, r->model_.splat_layout.stride());
+    r->compositor_ = std::make_unique<SplatCompositor>();
     glGenBuffers(1, &r->splat_ssbo_);
     glBindBuffer(GL_SHADER_STORAGE_BUFFER, r->splat_ssbo_);
-    glBufferData(GL_SHADER_STORAGE_BUFFER, GLsizeiptr(model.splats.size() * sizeof(float)), model.splats.data(), GL_STATIC_DRAW);
+    glBufferData(GL_SHADER_STORAGE_BUFFER, GLsizeiptr(r->model_.splats.size() * sizeof(float)), r->model_.splats.data(),
+                 GL_STATIC_DRAW);
     glGenVertexArrays(1, &r->splat_vao_);
     glBindVertexArray(r->splat_vao_);
     glGenBuffers(1, &r->splat_order_vbo_);
@@ -675,6 +703,7 @@ ModelRenderer::~ModelRenderer() {
     if (m.vao) glDeleteVertexArrays(1, &m.vao);
   if (color_array_) glDeleteTextures(1, &color_array_);
   if (distance_array_) glDeleteTextures(1, &distance_array_);
+  if (composited_texture_) glDeleteTextures(1, &composited_texture_);
 }
 
 // One draw's view, options and depth range, shared by its passes.
@@ -879,6 +908,9 @@ void ModelRenderer::draw_billboards(const Pass& pass, DrawStats& st) {
 // "over" into a half-float copy of the target (the background and
 // environment already there), copied back.
 Status ModelRenderer::draw_splats(const Pass& pass, const Framebuffer& target, DrawStats& st) {
+  const auto where = pass.o.fitted_pass;
+  if (where == DrawOptions::FittedPass::kCpu || (where == DrawOptions::FittedPass::kAuto && software_gl_))
+    return composite_splats_on_cpu(pass, target, st);
   const size_t stride = size_t(model_.splat_layout.stride()), n = model_.splat_count();
   if (!splat_target_ || splat_target_->width() != target.width() || splat_target_->height() != target.height()) {
     auto fb = Framebuffer::create(target.width(), target.height(), true);
@@ -921,6 +953,44 @@ Status ModelRenderer::draw_splats(const Pass& pass, const Framebuffer& target, D
   glDisable(GL_BLEND);
   glEnable(GL_DEPTH_TEST);
   splat_target_->blit_to(target);
+  return {};
+}
+
+// Fitted billboards composited on the CPU (front to back, each pixel
+// finished at its first opaque layer), then laid "over" the target in one
+// full-viewport draw: colour + T x what is there.
+Status ModelRenderer::composite_splats_on_cpu(const Pass& pass, const Framebuffer& target, DrawStats& st) {
+  SplatCompositeStats cs;
+  compositor_->composite(model_.splats, model_.splat_layout.coeffs(), pass.view.K, pass.view.world_from_camera, pass.near_m,
+                         composited_, threads_, &cs);
+  st.fitted_on_cpu = true;
+  st.selection.facets = cs.facets;
+  st.selection.drawn = cs.drawn;
+  const int W = target.width(), H = target.height();
+  if (!composited_texture_ || composited_width_ != W || composited_height_ != H) {
+    if (composited_texture_) glDeleteTextures(1, &composited_texture_);
+    glGenTextures(1, &composited_texture_);
+    glBindTexture(GL_TEXTURE_2D, composited_texture_);
+    glTexStorage2D(GL_TEXTURE_2D, 1, GL_RGBA32F, W, H);
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+    composited_width_ = W, composited_height_ = H;
+  }
+  glActiveTexture(GL_TEXTURE0);
+  glBindTexture(GL_TEXTURE_2D, composited_texture_);
+  glPixelStorei(GL_UNPACK_ALIGNMENT, 4);
+  glTexSubImage2D(GL_TEXTURE_2D, 0, 0, 0, W, H, GL_RGBA, GL_FLOAT, composited_.data());
+  target.bind();
+  glDisable(GL_DEPTH_TEST);
+  glEnable(GL_BLEND);
+  glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);
+  const GlProgram& p = programs_->composited;
+  glUseProgram(p.id());
+  glUniform1i(p.uniform("u_image"), 0);
+  glBindVertexArray(splat_vao_);
+  glDrawArrays(GL_TRIANGLES, 0, 3);
+  glDisable(GL_BLEND);
+  glEnable(GL_DEPTH_TEST);
   return {};
 }
 

@@ -62,6 +62,7 @@ void fill_silhouette_distance(ImageF& distance);
 
 class GlossyRenderer;
 class GlProgram;
+class SplatCompositor;
 
 struct DrawOptions {
   // kMesh: the octree's patch mesh; kSurface: the fused surface mesh;
@@ -85,6 +86,12 @@ struct DrawOptions {
   // out the billboards whose facets all reach it; 0: billboards everywhere.
   double mesh_reliability = 0;
   float background[3] = {0.f, 0.f, 0.f};
+  // kSplats: where the fitted billboards are composited. kAuto: on the CPU
+  // (reconstruct/splat_composite.h: front to back, stopping at the first
+  // opaque layer) when the OpenGL renderer is itself software (llvmpipe,
+  // softpipe, SwiftShader), else the GL pass. Both are the fit's image formation.
+  enum class FittedPass { kAuto, kGl, kCpu };
+  FittedPass fitted_pass = FittedPass::kAuto;
   double near_m = 0.01, far_m = 100.0;
   // Drawn first into the same depth buffer: the panorama as backdrop and the
   // glossy floor and props (render/glossy_renderer.h). Not owned.
@@ -106,6 +113,7 @@ struct DrawStats {
   LodStats lod;
   size_t triangles = 0;       // mesh (with mesh_reliability: the reliable triangles drawn)
   size_t facets_on_mesh = 0;  // with mesh_reliability: selected billboards left to the mesh
+  bool fitted_on_cpu = false;  // kSplats: composited on the CPU (DrawOptions::fitted_pass)
   double cpu_ms = 0;          // selection + upload + submit
   double frame_ms = 0;        // until the image is finished (glFinish)
   bool environment_drawn = false, envmap_bound = false;
@@ -127,6 +135,7 @@ class ModelRenderer {
 
   const Model& model() const { return model_; }
   bool has_splats() const { return !model_.splats.empty(); }
+  bool has_textures() const { return color_array_ != 0; }  // camera images: what billboards and meshes are textured from
   bool has_mesh(DrawOptions::Geometry g = DrawOptions::Geometry::kMesh) const {
     return meshes_[g == DrawOptions::Geometry::kSurface ? 1 : 0].triangles > 0;
   }
@@ -149,6 +158,7 @@ class ModelRenderer {
   void draw_mesh(const Pass& pass, const GpuMesh& g, size_t triangles, bool nearest, DrawStats& st) const;
   void draw_billboards(const Pass& pass, DrawStats& st);
   Status draw_splats(const Pass& pass, const Framebuffer& target, DrawStats& st);
+  Status composite_splats_on_cpu(const Pass& pass, const Framebuffer& target, DrawStats& st);
   Model model_;
   std::unique_ptr<Programs> programs_;
   unsigned color_array_ = 0, distance_array_ = 0;
@@ -165,6 +175,14 @@ class ModelRenderer {
   unsigned splat_ssbo_ = 0, splat_vao_ = 0, splat_order_vbo_ = 0;
   std::unique_ptr<Framebuffer> splat_target_;
   std::vector<uint32_t> splat_order_;
+  // The CPU pass: its compositor (buffers kept between frames), its image
+  // and the texture it is laid over the target from.
+  bool software_gl_ = false;
+  int threads_ = 0;
+  std::unique_ptr<SplatCompositor> compositor_;
+  std::vector<float> composited_;
+  unsigned composited_texture_ = 0;
+  int composited_width_ = 0, composited_height_ = 0;
 };
 
 }  // namespace s2r

@@ -479,17 +479,24 @@ TEST(Fitted, GlDrawsTheFitsImageFormation) {
   ASSERT_TRUE(g.renderer);
   DrawOptions o = background_options();
   o.geometry = DrawOptions::Geometry::kSplats;
+  // Both passes: the GL one and the CPU compositor laid over the target.
+  for (auto pass : {DrawOptions::FittedPass::kGl, DrawOptions::FittedPass::kCpu})
   for (double deg : {-40.0, 7.0, 25.0}) {
+    o.fitted_pass = pass;
     const ViewCamera v = arc_camera(deg);  // with the lens's distortion
     DrawStats st;
     const ImageU8 drawn = rgb(draw(g, v, o, &st));
+    EXPECT_EQ(st.fitted_on_cpu, pass == DrawOptions::FittedPass::kCpu);
     EXPECT_EQ(st.selection.drawn, splats.size());
     const std::array<float, 3> bg{kBackground[0] / 255.f, kBackground[1] / 255.f, kBackground[2] / 255.f};
     const ImageF cpu = render_splats(splats, 4, v.K, v.world_from_camera, bg);
     ImageU8 ref(cpu.width, cpu.height, 3);
     for (size_t i = 0; i < cpu.data.size(); ++i) ref.data[i] = uint8_t(std::lround(std::clamp(cpu.data[i], 0.f, 1.f) * 255));
     const double p = *psnr(drawn, ref);
-    EXPECT_GT(p, 40.0) << "at " << deg << " degrees";
+    EXPECT_GT(p, 40.0) << "at " << deg << " degrees, " << (st.fitted_on_cpu ? "cpu" : "gl");
+    if (st.fitted_on_cpu) {
+      EXPECT_GT(p, 50.0) << "at " << deg << " degrees: the same image formation, rounded once";
+    }
   }
 }
 

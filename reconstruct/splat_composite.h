@@ -1,0 +1,61 @@
+// Fitted billboards composited on the CPU for display: the image formation
+// of splat_fit.h (camera-facing Gaussian footprints, front to back, a pixel
+// finished once its transmittance would fall under 1e-4) made fast for a
+// viewer on a machine whose OpenGL is a software rasterizer. There the GL
+// pass pays for every fragment of every footprint, hidden or not, and runs
+// its vertex stage on one thread; compositing front to back stops at the
+// first opaque layer and works a 16 x 16 tile's rows 16 pixels at a time.
+//
+// The result is premultiplied colour and transmittance per pixel, so that
+// the caller lays it over whatever is already drawn (a backdrop, an
+// environment): out = rgb + T * under.
+#pragma once
+
+#include <cstddef>
+#include <memory>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "core/camera_model.h"
+
+namespace s2r {
+
+struct SplatCompositeStats {
+  size_t facets = 0, drawn = 0;  // all, and those in front of the camera and in the image
+  size_t tile_entries = 0;       // (facet, tile) pairs listed
+  size_t tiles_finished_early = 0;  // tiles whose every pixel became opaque before their list ended
+  double ms_project = 0, ms_sort = 0, ms_composite = 0;
+};
+
+// `records`: the model's splats.bin (5 + 3 coeffs floats a facet: centre,
+// sigma, opacity, SH coefficient-major). `rgba_out` becomes K.width x
+// K.height x 4 floats, rows top to bottom: premultiplied RGB and T.
+// Facets nearer than `near_m` are left out. A compositor keeps its buffers
+// from frame to frame (a viewer draws many); composite_splats is one frame.
+class SplatCompositor {
+ public:
+  SplatCompositor();
+  ~SplatCompositor();
+  SplatCompositor(SplatCompositor&&) noexcept;
+  SplatCompositor& operator=(SplatCompositor&&) noexcept;
+
+  void composite(const std::vector<float>& records, int coeffs, const Intrinsics& K, const Eigen::Isometry3d& world_from_camera,
+                 double near_m, std::vector<float>& rgba_out, int threads = 0, SplatCompositeStats* stats = nullptr);
+
+ private:
+  struct Buffers;
+  std::unique_ptr<Buffers> b_;
+};
+
+// Reorders the facets (records of `stride` floats) along a Morton curve of
+// their centres, so that the facets of one screen tile lie near each other
+// in memory; the image formation does not depend on the order (depth ties
+// aside). Returns false when they were already in that order.
+bool order_splats_spatially(std::vector<float>& records, int stride);
+
+void composite_splats(const std::vector<float>& records, int coeffs, const Intrinsics& K,
+                      const Eigen::Isometry3d& world_from_camera, double near_m, std::vector<float>& rgba_out, int threads = 0,
+                      SplatCompositeStats* stats = nullptr);
+
+}  // namespace s2r
