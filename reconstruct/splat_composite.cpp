@@ -30,30 +30,54 @@ namespace {
 
 constexpr int kCompositeTile = 16;
 
-// Four pixels of a row at a time: GCC's vector extensions, SSE on x86-64
-// and NEON on arm64 without asking for either.
-typedef float v4f __attribute__((vector_size(16)));
-typedef int32_t v4i __attribute__((vector_size(16)));
-
-inline v4f splat4(float s) { return v4f{s, s, s, s}; }
-
-// exp(x) for x in [-80, 0], four at a time: 2^t as 2^floor(t) times the
-// degree-6 polynomial of splat_fit's fast_exp (relative error under 2e-5).
-inline v4f exp4(v4f x) {
-  x = x < splat4(-80.f) ? splat4(-80.f) : x;
-  const v4f t = x * 1.4426950408889634f;
-  v4i ti = __builtin_convertvector(t, v4i);  // toward zero
-  ti += (t < __builtin_convertvector(ti, v4f));  // -1 where that rounded up: floor
-  const v4f f = t - __builtin_convertvector(ti, v4f);
-  const v4f p = 1.f + f * (0.69314718f + f * (0.24022651f + f * (0.05550411f + f * (0.00961813f + f * (0.00133336f + f * 0.00015404f)))));
-  const v4i bits = (ti + 127) << 23;
-  return p * std::bit_cast<v4f>(bits);
-}
-
-inline v4f select4(v4i mask, v4f a) {  // a where mask, else 0
-  return std::bit_cast<v4f>(std::bit_cast<v4i>(a) & mask);
-}
-
+// N pixels of a row at a time in GCC's vector extensions: 4 (SSE on
+// x86-64, NEON on arm64, without asking for either) or 8 (AVX2, chosen at
+// run time where the processor has it).
+template <int N>
+struct VectorTypes;
+template <>
+struct VectorTypes<4> {
+  typedef float f __attribute__((vector_size(16)));
+  typedef int32_t i __attribute__((vector_size(16)));
+};
+template <>
+struct VectorTypes<8> {
+  typedef float f __attribute__((vector_size(32)));
+  typedef int32_t i __attribute__((vector_size(32)));
+};
+template <int N>
+struct Lanes {
+  using f = typename VectorTypes<N>::f;
+  using i = typename VectorTypes<N>::i;
+  [[gnu::always_inline]] static inline f all(float s) {
+    f v;
+    for (int k = 0; k < N; ++k) v[k] = s;
+    return v;
+  }
+  [[gnu::always_inline]] static inline f iota(float start) {
+    f v;
+    for (int k = 0; k < N; ++k) v[k] = start + float(k);
+    return v;
+  }
+  // exp(x) for x in [-80, 0]: 2^t as 2^floor(t) times the degree-6
+  // polynomial of splat_fit's fast_exp, the same operations in the same order.
+  [[gnu::always_inline]] static inline f exp(f x) {
+    x = x < all(-80.f) ? all(-80.f) : x;
+    const f t = x * 1.4426950408889634f;
+    i ti = __builtin_convertvector(t, i);          // toward zero
+    ti += (t < __builtin_convertvector(ti, f));    // -1 where that rounded up: floor
+    const f fr = t - __builtin_convertvector(ti, f);
+    const f p = 1.f + fr * (0.69314718f + fr * (0.24022651f + fr * (0.05550411f + fr * (0.00961813f + fr * (0.00133336f + fr * 0.00015404f)))));
+    const i bits = (ti + 127) << 23;
+    return p * std::bit_cast<f>(bits);
+  }
+  [[gnu::always_inline]] static inline f select(i mask, f a) { return std::bit_cast<f>(std::bit_cast<i>(a) & mask); }
+  [[gnu::always_inline]] static inline bool all_set(i m) {
+    int32_t x = -1;
+    for (int k = 0; k < N; ++k) x &= m[k];
+    return x != 0;
+  }
+};
 
 double composite_ms_since(std::chrono::steady_clock::time_point t) {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t).count();
@@ -61,27 +85,32 @@ double composite_ms_since(std::chrono::steady_clock::time_point t) {
 
 // Composites one tile's list (near to far) into `out`; true when every
 // pixel became opaque before the list ended.
-bool composite_tile(const std::vector<ProjectedFacet>& p, const uint64_t* list, uint32_t count, int x0, int y0, int w, int h, int W,
+template <int N>
+[[gnu::always_inline]] inline bool composite_tile_n(const std::vector<ProjectedFacet>& p, const uint64_t* list, uint32_t count, int x0, int y0, int w, int h, int W,
                     float* out) {
-  constexpr int G = kCompositeTile / 4;
-  v4f T[kCompositeTile][G], R[kCompositeTile][G], Gr[kCompositeTile][G], B[kCompositeTile][G];
-  v4i done[kCompositeTile][G];
-  v4f lane_x[G];
+  using L = Lanes<N>;
+  using vf = typename L::f;
+  using vi = typename L::i;
+  constexpr int G = kCompositeTile / N;  // lane groups a row
+  vf T[kCompositeTile][G], R[kCompositeTile][G], Gr[kCompositeTile][G], B[kCompositeTile][G];
+  vi done[kCompositeTile][G];
+  vf lane_x[G];
   for (int g = 0; g < G; ++g) {
-    lane_x[g] = v4f{0, 1, 2, 3} + float(x0 + 4 * g);
-    const v4i col = v4i{0, 1, 2, 3} + 4 * g;
+    lane_x[g] = L::iota(float(x0 + N * g));
+    const vi past = L::iota(float(N * g)) >= L::all(float(w));  // lanes past the image's edge count as finished
     for (int y = 0; y < kCompositeTile; ++y) {
-      T[y][g] = splat4(1.f), R[y][g] = Gr[y][g] = B[y][g] = splat4(0.f);
-      done[y][g] = col >= w;  // lanes past the image's edge count as finished
+      T[y][g] = L::all(1.f), R[y][g] = Gr[y][g] = B[y][g] = L::all(0.f);
+      done[y][g] = past;
     }
   }
-  // Bit 4 y + g: the four pixels (y, 4 g .. 4 g + 3) are still open. A
-  // facet whose pixels are all finished costs one test.
-  static_assert(kCompositeTile * G == 64);
-  uint64_t open = 0;
+  // Bit G y + g: the N pixels (y, N g ..) are still open. A facet whose
+  // pixels are all finished costs one test.
+  static_assert(kCompositeTile * G <= 64);
+  uint64_t open = 0, row_starts = 0;  // row_starts: bit G y of every row
+  for (int y = 0; y < kCompositeTile; ++y) row_starts |= uint64_t(1) << (G * y);
   for (int y = 0; y < h; ++y)
-    for (int g = 0; g < (w + 3) / 4; ++g) open |= uint64_t(1) << (4 * y + g);
-  constexpr uint64_t kRowStarts = 0x1111111111111111ULL;  // bit 4 y of every row
+    for (int g = 0; g < (w + N - 1) / N; ++g) open |= uint64_t(1) << (G * y + g);
+  const uint64_t all_rows = kCompositeTile * G == 64 ? ~uint64_t(0) : (uint64_t(1) << (kCompositeTile * G)) - 1;
   for (uint32_t j = 0; j < count && open; ++j) {
     if (j + 8 < count) __builtin_prefetch(&p[uint32_t(list[j + 8])]);  // the list is in depth order, the facets are not
     const ProjectedFacet& s = p[uint32_t(list[j])];
@@ -89,40 +118,60 @@ bool composite_tile(const std::vector<ProjectedFacet>& p, const uint64_t* list, 
     const int ya = std::max(0, int(std::ceil(s.v - r)) - y0), yb = std::min(h - 1, int(std::floor(s.v + r)) - y0);
     const int xa = std::max(0, int(std::ceil(s.u - r)) - x0), xb = std::min(w - 1, int(std::floor(s.u + r)) - x0);
     if (ya > yb || xa > xb) continue;
-    const int ga = xa / 4, gb = xb / 4;
-    const uint64_t rows = (yb == kCompositeTile - 1 ? ~uint64_t(0) : (uint64_t(1) << (4 * (yb + 1))) - 1) & ~((uint64_t(1) << (4 * ya)) - 1);
-    const uint64_t groups = (kRowStarts & rows) * (((uint64_t(1) << (gb - ga + 1)) - 1) << ga);
+    const int ga = xa / N, gb = xb / N;
+    const uint64_t rows = (yb == kCompositeTile - 1 ? all_rows : (uint64_t(1) << (G * (yb + 1))) - 1) & ~((uint64_t(1) << (G * ya)) - 1);
+    const uint64_t groups = (row_starts & rows) * (((uint64_t(1) << (gb - ga + 1)) - 1) << ga);
     for (uint64_t m = open & groups; m; m &= m - 1) {
-      const int bit = __builtin_ctzll(m), y = bit >> 2, g = bit & 3;
+      const int bit = __builtin_ctzll(m), y = bit / G, g = bit % G;
       const float dy = float(y0 + y) - s.v;
-      const v4f dx = lane_x[g] - s.u;
-      const v4f d2 = dx * dx + dy * dy;
-      v4f a = s.o * exp4(-d2 * s.k);
-      a = a < splat4(kSplatAlphaMax) ? a : splat4(kSplatAlphaMax);
-      const v4i dn = done[y][g];
-      v4i ok = (d2 <= splat4(s.cut2)) & (a >= splat4(kSplatAlphaMin)) & ~dn;
-      const v4f Tv = T[y][g];
-      const v4f next = Tv * (1.f - a);
-      const v4i fin = ok & (next < splat4(kSplatStopT));  // as the fit: this pixel is finished, the facet not added
-      const v4i now_done = dn | fin;
+      const vf dx = lane_x[g] - s.u;
+      const vf d2 = dx * dx + dy * dy;
+      vf a = s.o * L::exp(-d2 * s.k);
+      a = a < L::all(kSplatAlphaMax) ? a : L::all(kSplatAlphaMax);
+      const vi dn = done[y][g];
+      vi ok = (d2 <= L::all(s.cut2)) & (a >= L::all(kSplatAlphaMin)) & ~dn;
+      const vf Tv = T[y][g];
+      const vf next = Tv * (1.f - a);
+      const vi fin = ok & (next < L::all(kSplatStopT));  // as the fit: this pixel is finished, the facet not added
+      const vi now_done = dn | fin;
       done[y][g] = now_done;
-      if ((now_done[0] & now_done[1] & now_done[2] & now_done[3]) != 0) open &= ~(uint64_t(1) << bit);
+      if (L::all_set(now_done)) open &= ~(uint64_t(1) << bit);
       ok &= ~fin;
-      const v4f aw = select4(ok, a * Tv);
+      const vf aw = L::select(ok, a * Tv);
       R[y][g] += aw * s.c[0], Gr[y][g] += aw * s.c[1], B[y][g] += aw * s.c[2];
-      T[y][g] = std::bit_cast<v4f>((std::bit_cast<v4i>(next) & ok) | (std::bit_cast<v4i>(Tv) & ~ok));
+      T[y][g] = std::bit_cast<vf>((std::bit_cast<vi>(next) & ok) | (std::bit_cast<vi>(Tv) & ~ok));
     }
   }
   const bool finished = open == 0;
   for (int y = 0; y < h; ++y) {
     float* row = out + (size_t(y0 + y) * W + x0) * 4;
     for (int x = 0; x < w; ++x) {
-      const int g = x / 4, l = x % 4;
+      const int g = x / N, l = x % N;
       row[4 * x] = R[y][g][l], row[4 * x + 1] = Gr[y][g][l], row[4 * x + 2] = B[y][g][l], row[4 * x + 3] = T[y][g][l];
     }
   }
   return finished;
 }
+
+// The tile in 4 lanes, or in 8 with AVX2 where the processor has it.
+#define S2R_TILE_ARGS const std::vector<ProjectedFacet>&p, const uint64_t *list, uint32_t count, int x0, int y0, int w, int h, int W, float *out
+bool composite_tile_4(S2R_TILE_ARGS) { return composite_tile_n<4>(p, list, count, x0, y0, w, h, W, out); }
+#if defined(__x86_64__)
+__attribute__((target("avx2"))) bool composite_tile_8(S2R_TILE_ARGS) {
+  return composite_tile_n<8>(p, list, count, x0, y0, w, h, W, out);
+}
+bool has_avx2() {
+  static const bool avx2 = __builtin_cpu_supports("avx2");
+  return avx2;
+}
+bool composite_tile(int lanes, S2R_TILE_ARGS) {
+  return lanes == 8 ? composite_tile_8(p, list, count, x0, y0, w, h, W, out) : composite_tile_4(p, list, count, x0, y0, w, h, W, out);
+}
+#else
+bool has_avx2() { return false; }
+bool composite_tile(int, S2R_TILE_ARGS) { return composite_tile_4(p, list, count, x0, y0, w, h, W, out); }
+#endif
+#undef S2R_TILE_ARGS
 
 }  // namespace
 
@@ -147,6 +196,8 @@ void SplatCompositor::composite(const std::vector<float>& records, int coeffs, c
   using clock = std::chrono::steady_clock;
   Buffers& b = *b_;
   SplatCompositeStats st;
+  const int lanes = lanes_ == 4 || !has_avx2() ? 4 : 8;
+  st.lanes = lanes;
   const int W = K.width, H = K.height;
   const size_t stride = size_t(5 + 3 * coeffs), n = records.size() / stride;
   st.facets = n;
@@ -273,7 +324,7 @@ void SplatCompositor::composite(const std::vector<float>& records, int coeffs, c
       return;
     }
     std::sort(b.list.begin() + lo, b.list.begin() + hi);  // near to far, ties in facet order
-    b.early[size_t(tile)] = composite_tile(b.p, b.list.data() + lo, hi - lo, x0, y0, w, h, W, rgba_out.data());
+    b.early[size_t(tile)] = composite_tile(lanes, b.p, b.list.data() + lo, hi - lo, x0, y0, w, h, W, rgba_out.data());
   });
   st.tiles_finished_early = size_t(std::count(b.early.begin(), b.early.end(), uint8_t(1)));
   st.ms_composite = composite_ms_since(t);

@@ -25,6 +25,7 @@ struct SplatCompositeStats {
   size_t facets = 0, drawn = 0;  // all, and those in front of the camera and in the image
   size_t tile_entries = 0;       // (facet, tile) pairs listed
   size_t tiles_finished_early = 0;  // tiles whose every pixel became opaque before their list ended
+  int lanes = 4;                 // pixels a vector: 8 with AVX2, else 4
   double ms_project = 0, ms_sort = 0, ms_composite = 0;
 };
 
@@ -42,10 +43,14 @@ class SplatCompositor {
 
   void composite(const std::vector<float>& records, int coeffs, const Intrinsics& K, const Eigen::Isometry3d& world_from_camera,
                  double near_m, std::vector<float>& rgba_out, int threads = 0, SplatCompositeStats* stats = nullptr);
+  // 4: four pixels a vector even where AVX2 would give eight (tests of
+  // both); 0 (default): the widest the processor has.
+  void set_lanes(int lanes) { lanes_ = lanes; }
 
  private:
   struct Buffers;
   std::unique_ptr<Buffers> b_;
+  int lanes_ = 0;
 };
 
 // Reorders the facets (records of `stride` floats) along a Morton curve of

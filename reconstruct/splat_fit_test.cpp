@@ -129,9 +129,15 @@ TEST(SplatComposite, IsTheFitsImageFormation) {
   for (const Intrinsics& K : {small_camera(), lens})
     for (const Eigen::Isometry3d& T : {ring_camera(10, 20, 1.4), ring_camera(-70, -30, 0.9), ring_camera(200, 5, 6.0)}) {
       const ImageF ref = render_splats(truth, 4, K, T, bg);
+      for (int lanes : {0, 4}) {
       std::vector<float> rgba;
       SplatCompositeStats st;
-      composite_splats(records, 4, K, T, 1e-3, rgba, 2, &st);
+      SplatCompositor c;
+      c.set_lanes(lanes);
+      c.composite(records, 4, K, T, 1e-3, rgba, 2, &st);
+      if (lanes == 4) {
+        EXPECT_EQ(st.lanes, 4);
+      }
       EXPECT_EQ(st.facets, truth.size());
       EXPECT_GT(st.drawn, truth.size() / 3);
       double worst = 0;
@@ -140,7 +146,8 @@ TEST(SplatComposite, IsTheFitsImageFormation) {
           const float* px = &rgba[(size_t(y) * K.width + x) * 4];
           for (int c = 0; c < 3; ++c) worst = std::max(worst, double(std::abs(px[c] + px[3] * bg[size_t(c)] - ref.at(x, y, c))));
         }
-      EXPECT_LT(worst, 2e-4);
+      EXPECT_LT(worst, 2e-4) << st.lanes << " lanes";
+      }
     }
   // Ordered along a Morton curve (as reconstruct writes them and the
   // renderer keeps them): the same image.
