@@ -14,7 +14,9 @@
 #include "core/paths.h"
 #include "core/progress.h"
 #include "reconstruct/camera_depth.h"
+#include "reconstruct/model.h"
 #include "reconstruct/reconstruct_job.h"
+#include "reconstruct/splat_composite.h"
 #include "render/raytrace_job.h"
 
 namespace s2r {
@@ -240,6 +242,42 @@ void BM_ReconstructJob(benchmark::State& state) {
   for (auto& [key, counter] : state.counters) counter.flags = benchmark::Counter::kAvgIterations;
 }
 BENCHMARK(BM_ReconstructJob)->Arg(15)->Arg(30)->Arg(60)->UseManualTime()->Unit(benchmark::kMillisecond);
+
+// The display compositor on a fitted model's facets (S2R_SPLAT_MODEL: a
+// model folder with a fit, e.g. lego's from `s2r bench views`), from its
+// first camera scaled to 800 pixels wide; argument: lanes (4, or 0 for the
+// widest the processor has). Counters: each phase's milliseconds.
+void BM_SplatComposite(benchmark::State& state) {
+  static const std::optional<Model> model = []() -> std::optional<Model> {
+    const char* dir = std::getenv("S2R_SPLAT_MODEL");
+    if (!dir) return std::nullopt;
+    auto m = load_model(dir);
+    if (!m || m->splats.empty() || m->cameras.empty()) return std::nullopt;
+    order_splats_spatially(m->splats, m->splat_layout.stride());
+    return std::move(*m);
+  }();
+  if (!model) {
+    state.SkipWithError("S2R_SPLAT_MODEL: not a fitted model folder");
+    return;
+  }
+  Intrinsics K = model->cameras[0].intrinsics;
+  const double s = 800.0 / K.width;
+  K.width = 800, K.height = int(std::lround(K.height * s));
+  K.fx *= s, K.fy *= s, K.cx = (K.cx + 0.5) * s - 0.5, K.cy = (K.cy + 0.5) * s - 0.5;
+  SplatCompositor c;
+  c.set_lanes(int(state.range(0)));
+  std::vector<float> rgba;
+  int view = 0;
+  for (auto _ : state) {
+    SplatCompositeStats st;
+    const auto& cam = model->cameras[size_t(view++) % model->cameras.size()];
+    c.composite(model->splats, model->splat_layout.coeffs(), K, cam.world_from_camera, 0.01, rgba, 0, &st);
+    state.counters["project_ms"] += st.ms_project, state.counters["bin_ms"] += st.ms_sort,
+        state.counters["composite_ms"] += st.ms_composite;
+  }
+  for (auto& [key, counter] : state.counters) counter.flags = benchmark::Counter::kAvgIterations;
+}
+BENCHMARK(BM_SplatComposite)->Arg(4)->Arg(0)->Unit(benchmark::kMillisecond);
 
 }  // namespace
 }  // namespace s2r
