@@ -27,6 +27,7 @@ void add_bench(CLI::App& app, Chosen& chosen) {
   sub->add_option("--scene", a->scene, "rig scene for the rig sweep")->capture_default_str();
   sub->add_option("--size", a->size, "raytrace: pixels per CAVE screen side (the paper: 256; 512 steadies the timings)")->capture_default_str();
   sub->add_option("--lego-views", a->lego_views, "views: lego val views evaluated, evenly spaced (100 = all)")
+      ->check(CLI::Range(1, 100))
       ->capture_default_str();
   sub->add_option("--fit", a->fit_lego, "views: seconds of lego's fit (its PSNR at 1, 5, 10, 15, 20 minutes on the way, fit.png); 0: no fit")
       ->check(CLI::NonNegativeNumber)
@@ -106,7 +107,9 @@ std::optional<int> parse_command_line(int argc, char** argv, Chosen& chosen, boo
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    // --help and --version are success; every other parse error is a usage
+    // error: exit 2, as docs/cli.md says (CLI11's own codes are 101-127).
+    return app.exit(e) == 0 ? 0 : 2;
   }
   return std::nullopt;
 }

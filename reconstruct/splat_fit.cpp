@@ -429,6 +429,17 @@ bool finite(const Splat& s, int coeffs) {
 
 }  // namespace
 
+std::string DivergenceGuard::observe(int epoch, int scale, double psnr) {
+  auto it = std::find_if(best_.begin(), best_.end(), [&](const auto& b) { return b.first == scale; });
+  if (it == best_.end()) it = best_.insert(best_.end(), {scale, psnr});
+  it->second = std::max(it->second, psnr);
+  if (!(psnr >= it->second - 3) || (stage_ == 0 && scale == initial_scale_ && !(psnr >= initial_)))
+    return fmt::format("fit: diverged: training PSNR {:.1f} dB at epoch {} (at the start {:.1f} dB, the best at this "
+                       "scale in this stage {:.1f} dB)",
+                       psnr, epoch, initial_, it->second);
+  return {};
+}
+
 void sh_basis(const Eigen::Vector3f& d, int n, float* out) {
   out[0] = kC0;
   if (n < 4) return;
@@ -601,10 +612,11 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
     sum.seconds_initial = elapsed();
     sum.initial_psnr_db = initial_psnr;
   }
-  std::map<int, double> best_psnr;  // per scale
+  DivergenceGuard guard(initial_psnr, stages[0].scale_first);
   int stage_epochs = 0;             // whole passes over the photos in the stage
   for (size_t si = 0; si < stages.size(); ++si) {
     const Stage& st = stages[si];
+    if (si > 0) guard.new_stage();
     if (si > 0 && stage_epochs > 0) {
       // Refinement: drop what the photos do not need (nearly transparent, or
       // under one pixel's weight per pass over the photos: hidden inside),
@@ -718,16 +730,7 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
       const double psnr = 10 * std::log10(1.0 / std::max(mse, 1e-12));
       sum.curve.push_back({elapsed(), epoch, scale, psnr, splats.size()});
       if (scale == 1 || sum.train_psnr_db == 0) sum.train_psnr_db = psnr;
-      // Divergence: worse than the start, or well below the best epoch at
-      // this scale (an epoch's figure mixes the steps' states, so 3 dB).
-      const double floor = scale == stages[0].scale_first && si == 0 ? initial_psnr : -1e9;
-      double& best = best_psnr.try_emplace(scale, -1e9).first->second;
-      best = std::max(best, psnr);
-      if (psnr < floor || psnr < best - 3)
-        return fail(ErrorCode::invalid,
-                    fmt::format("fit: diverged: training PSNR {:.1f} dB at epoch {} (at the start {:.1f} dB, the best "
-                                "at this scale {:.1f} dB)",
-                                psnr, epoch, initial_psnr, best));
+      if (const std::string bad = guard.observe(epoch, scale, psnr); !bad.empty()) return fail(ErrorCode::invalid, bad);
     }
   }
   for (const Splat& s : splats)

@@ -74,6 +74,26 @@ inline int sh_coeffs(int degree) { return (degree + 1) * (degree + 1); }
 // in the renderer.
 void radix_sort(std::vector<std::pair<uint32_t, uint32_t>>& pairs);
 
+// The fit's divergence test, epoch by epoch: an epoch's training PSNR under
+// the error before any step (the first stage, at the scale that error was
+// measured at), or more than 3 dB under
+// the best epoch of the same stage at the same scale (an epoch's figure mixes
+// the steps' states, so 3 dB). A new stage starts its own record: a stage
+// begins with its facets just split, a few dB under where the last one
+// ended, and that is not divergence.
+class DivergenceGuard {
+ public:
+  DivergenceGuard(double initial_psnr_db, int initial_scale) : initial_(initial_psnr_db), initial_scale_(initial_scale) {}
+  void new_stage() { best_.clear(), ++stage_; }
+  // An error message when `psnr_db` at `scale` is divergence, else empty.
+  std::string observe(int epoch, int scale, double psnr_db);
+
+ private:
+  double initial_;
+  int initial_scale_, stage_ = 0;
+  std::vector<std::pair<int, double>> best_;  // (scale, best PSNR) in this stage
+};
+
 struct SplatView {
   Intrinsics intrinsics;
   Eigen::Isometry3d world_from_camera = Eigen::Isometry3d::Identity();

@@ -219,6 +219,24 @@ TEST(SplatFit, DivergenceIsAnErrorAndLeavesTheFacets) {
   EXPECT_EQ(splats[0].sh, before[0].sh);
 }
 
+// The test itself: a fall of more than 3 dB within a stage and scale is
+// divergence, as is ending the first stage's first scale under the start; a
+// new stage (its facets just split) may start under the last one's best.
+TEST(SplatFit, DivergenceGuardKeepsEachStagesOwnRecord) {
+  DivergenceGuard g(24.0, 2);
+  EXPECT_EQ(g.observe(1, 2, 27.0), "");
+  EXPECT_EQ(g.observe(2, 1, 22.0), "");  // a finer scale: its own record, the start's floor not applied
+  EXPECT_EQ(g.observe(3, 2, 25.0), "");  // 2 dB under the best
+  EXPECT_NE(g.observe(4, 2, 23.9), "");  // under the start
+  EXPECT_NE(g.observe(5, 1, 18.9), "");  // 3.1 dB under the best at scale 1
+  EXPECT_NE(g.observe(6, 1, std::nan("")), "");
+  g.new_stage();
+  EXPECT_EQ(g.observe(7, 1, 17.0), "");  // the split's fall: a new record
+  EXPECT_EQ(g.observe(8, 1, 21.0), "");
+  const std::string bad = g.observe(9, 1, 17.5);
+  EXPECT_NE(bad.find("diverged: training PSNR 17.5 dB at epoch 9"), std::string::npos) << bad;
+}
+
 bool bounded(const ImageF& im, float hi) {
   for (float v : im.data)
     if (!std::isfinite(v) || v < 0 || v > hi) return false;

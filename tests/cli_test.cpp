@@ -34,6 +34,17 @@ TEST(Cli, HelpListsTheDesignSubcommands) {
     EXPECT_NE(r.out.find(sub), std::string::npos) << sub << "\n" << r.out;
 }
 
+// Usage errors (an unknown flag, a missing argument or subcommand, a value
+// out of range) exit 2 with CLI11's message; help exits 0.
+TEST(Cli, UsageErrorsExitTwo) {
+  for (const char* args : {"render --bogus", "", "nosuch", "reconstruct", "bench views --out /tmp/x --lego-views -3"}) {
+    const auto r = run_s2r(args);
+    EXPECT_EQ(r.code, 2) << args << "\n" << r.out;
+    EXPECT_FALSE(r.out.empty()) << args;
+  }
+  EXPECT_EQ(run_s2r("render --help").code, 0);
+}
+
 // The front answers --help itself and links no stage library: that is what
 // makes every command's help start at once (docs/testing.md, start-up).
 TEST(Cli, FrontLinksOnlyTheCxxRuntime) {
