@@ -11,9 +11,13 @@
 
 namespace s2r {
 
-inline int worker_count(int requested) {
-  return requested > 0 ? requested : std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
-}
+// The cores this process may run on: its CPU affinity (what taskset, a
+// container's cpuset or a Slurm task's --cpus-per-task leave it), not every
+// core of the machine; hardware_concurrency where the affinity is unknown.
+int usable_cores();
+
+// `requested` threads, or with 0 one per usable core.
+inline int worker_count(int requested) { return requested > 0 ? requested : usable_cores(); }
 
 // Calls body(i) for i in [0, n), items handed out one at a time. `body` must
 // not throw.
