@@ -91,6 +91,8 @@ void add_render(CLI::App& app, Chosen& chosen) {
   sub->add_option("--pose", job.view_file, "view file: {format s2r.view, intrinsics, world_from_camera}");
   sub->add_option("--scale", job.scale, "image size relative to the camera's")->capture_default_str();
   sub->add_option("--background", a->background, "white, black or R,G,B (0-255 levels); default: the model's own background (the capture's, e.g. white for NeRF-synthetic), else black");
+  sub->add_flag_callback("--no-backdrop-plate", [&job] { job.backdrop_plate = false; },
+                         "a frame of the model's own capture on the background colour, not on the capture's backdrop plate");
   sub->add_option("--report", a->report, "report path (default: beside --out)");
   add_draw_options(sub, a->draw);
   add_source_options(sub, job.source);
@@ -112,6 +114,8 @@ void add_eval(CLI::App& app, Chosen& chosen) {
   sub->add_flag_callback("--no-baselines", [&job] { job.baselines = false; }, "billboards (and fitted billboards) only");
   sub->add_option("--splats", job.splats, "draw this snapshot of the fit as 'fitted' (splats_<S>s.bin, reconstruct --fit-snapshots)");
   sub->add_option("--background", a->background, "white, black or R,G,B (0-255 levels); default: the session's own background, else the backdrop's colour, else black");
+  sub->add_flag_callback("--no-backdrop-plate", [&job] { job.backdrop_plate = false; },
+                         "frames of the model's own capture on the background colour, not on the capture's backdrop plate");
   add_draw_options(sub, a->draw);
   add_source_options(sub, job.source);
   sub->callback([a, &chosen] { chosen = a; });

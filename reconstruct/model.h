@@ -23,6 +23,7 @@
 #include <Eigen/Geometry>
 
 #include "core/camera_model.h"
+#include "core/image.h"
 #include "core/result.h"
 
 namespace s2r {
@@ -93,12 +94,20 @@ struct Model {
   // composited on (white for NeRF-synthetic) or the fit's backdrop colour.
   // Drawing the model defaults to it; empty: black.
   std::optional<std::array<float, 3>> background;
+  // Relative PNG path: the backdrop plate (reconstruct/backdrop_plate.h), the
+  // fixed camera's view behind the object, drawn behind frames of the
+  // capture seen from its cameras. Empty where the backdrop is uniform or
+  // not static.
+  std::optional<std::string> backdrop;
   SplatLayout splat_layout;
   std::vector<float> splats;  // fitted billboards, splat_layout.stride() floats each; empty when not fitted
   size_t splat_count() const { return splats.size() / size_t(splat_layout.stride()); }
 };
 
 Result<Model> load_model(const std::filesystem::path& dir);
+// The model's backdrop plate (RGB, its cameras' size), or nothing where it
+// has none; an error where the file is missing, unreadable or of another size.
+Result<std::optional<ImageU8>> load_backdrop(const Model& model, const std::filesystem::path& dir);
 // A splats.bin payload alone (a snapshot of a fit), in the model's format;
 // load checks it holds whole facets of `layout` with valid values.
 Status save_splat_payload(const std::filesystem::path& file, const std::vector<float>& splats);

@@ -4,7 +4,10 @@
 #include <cstring>
 #include <future>
 
+#include <spdlog/fmt/fmt.h>
+
 #include "core/atomic_file.h"
+#include "core/image_io.h"
 #include "core/json_fields.h"
 #include "core/paths.h"
 #include "reconstruct/model.h"
@@ -126,6 +129,7 @@ Status save_model(const fs::path& dir, const Model& m) {
   if (m.patch_mesh) doc["patch_mesh"] = *m.patch_mesh;
   if (m.surface_mesh) doc["surface_mesh"] = *m.surface_mesh;
   if (m.environment) doc["environment"] = *m.environment;
+  if (m.backdrop) doc["backdrop"] = *m.backdrop;
   if (m.background) doc["background"] = {(*m.background)[0], (*m.background)[1], (*m.background)[2]};
   // Payloads first, header last: a model.json always describes complete
   // payloads. The payloads are written at once (their flushes to disk
@@ -193,7 +197,7 @@ Result<Model> load_model(const fs::path& dir) {
     const uint64_t nf = static_cast<uint64_t>(pay.at("facets").integer("records"));
     const uint64_t nc = static_cast<uint64_t>(pay.at("facet_cameras").integer("records"));
     for (auto [key, field] : {std::pair{"patch_mesh", &m.patch_mesh}, std::pair{"surface_mesh", &m.surface_mesh},
-                              std::pair{"environment", &m.environment}}) {
+                              std::pair{"environment", &m.environment}, std::pair{"backdrop", &m.backdrop}}) {
       if (!doc.has(key)) continue;
       *field = doc.string(key);
       if (auto p = resolve_inside(dir, **field); !p) doc.error(key, p.error().message);
@@ -259,6 +263,24 @@ Result<Model> load_model(const fs::path& dir) {
       if (m.octree[c].level != n.level + 1) return fail(at + "child " + std::to_string(c) + " is not one level down");
   }
   return m;
+}
+
+Result<std::optional<ImageU8>> load_backdrop(const Model& model, const fs::path& dir) {
+  if (!model.backdrop) return std::optional<ImageU8>{};
+  auto path = resolve_inside(dir, *model.backdrop);
+  if (!path) return std::unexpected(with_context(path.error(), "model backdrop"));
+  auto im = read_image_u8(*path);
+  if (!im) return std::unexpected(with_context(im.error(), "model backdrop"));
+  if (im->channels < 3) return fail(ErrorCode::invalid, "model backdrop '" + path->string() + "': not an RGB image");
+  if (!model.cameras.empty() &&
+      (im->width != model.cameras[0].intrinsics.width || im->height != model.cameras[0].intrinsics.height))
+    return fail(ErrorCode::invalid, fmt::format("model backdrop '{}': {}x{}, the cameras {}x{}", path->string(), im->width,
+                                                im->height, model.cameras[0].intrinsics.width, model.cameras[0].intrinsics.height));
+  if (im->channels == 3) return std::optional<ImageU8>{std::move(*im)};
+  ImageU8 rgb(im->width, im->height, 3);
+  for (size_t p = 0; p < rgb.pixels(); ++p)
+    for (size_t c = 0; c < 3; ++c) rgb.data[p * 3 + c] = im->data[p * size_t(im->channels) + c];
+  return std::optional<ImageU8>{std::move(rgb)};
 }
 
 }  // namespace s2r

@@ -19,6 +19,7 @@
 #include "core/parallel.h"
 #include "core/progress.h"
 #include "core/sweep.h"
+#include "reconstruct/backdrop_plate.h"
 #include "reconstruct/camera_depth.h"
 #include "reconstruct/frame_inputs.h"
 #include "reconstruct/fusion.h"
@@ -663,7 +664,7 @@ std::array<float, 3> fit_background(const Session& s, const std::vector<View>& v
 // photos (only the views the model is built from), written as splats.bin
 // with the fit's error against seconds as fit.csv.
 Status fit_step(const ReconstructJob& job, const Session& s, const std::vector<View>& views, const SparseVolume& volume,
-                double w0, Model& model, ReconstructSummary& sum) {
+                double w0, const ImageU8* plate, Model& model, ReconstructSummary& sum) {
   Report& rep = sum.report;
   const auto anchors = volume.fit_candidates(2 * w0);
   if (anchors.empty()) {
@@ -675,13 +676,13 @@ Status fit_step(const ReconstructJob& job, const Session& s, const std::vector<V
   for (size_t i = 0; i < views.size(); ++i) {
     const ImageU8& c = views[i].color;
     if (c.channels == 3) {
-      sv.push_back({views[i].K, views[i].world_from_camera, &c});
+      sv.push_back({views[i].K, views[i].world_from_camera, &c, plate});
       continue;
     }
     rgb[i] = ImageU8(c.width, c.height, 3);
     for (size_t p = 0; p < c.pixels(); ++p)
       for (size_t k = 0; k < 3; ++k) rgb[i].data[p * 3 + k] = c.data[p * size_t(c.channels) + std::min<size_t>(k, size_t(c.channels) - 1)];
-    sv.push_back({views[i].K, views[i].world_from_camera, &rgb[i]});
+    sv.push_back({views[i].K, views[i].world_from_camera, &rgb[i], plate});
   }
   SplatFitOptions o;
   o.seconds = job.fit_seconds;
@@ -738,7 +739,8 @@ Status fit_step(const ReconstructJob& job, const Session& s, const std::vector<V
   rep.skipped["fit_facets_pruned"] = double(fit->pruned);
   rep.errors["fit_initial_psnr_db"] = fit->initial_psnr_db;
   rep.errors["fit_train_psnr_db"] = fit->train_psnr_db;
-  rep.params["fit_background"] = fmt::format("{:.3g},{:.3g},{:.3g}", o.background[0], o.background[1], o.background[2]);
+  rep.params["fit_background"] = plate ? std::string("backdrop_plate")
+                                       : fmt::format("{:.3g},{:.3g},{:.3g}", o.background[0], o.background[1], o.background[2]);
   rep.params["fit_sh_degree"] = double(job.fit_sh_degree);
   sum.fit = std::move(*fit);
   return {};
@@ -845,8 +847,40 @@ Result<ReconstructSummary> run_reconstruct_job(const ReconstructJob& job) {
   sum.camera_depth_triangles_drawn = depth.triangles_drawn();
   timer.lap("facets");
 
+  // The backdrop plate, where the capture is of an object whose backdrop
+  // stays put in the images and is not one colour (needed only by what
+  // draws from the photos or fits to them).
+  std::optional<ImageU8> plate;
+  if (in->s.layout == Layout::kObjectCentre && (job.textures || job.fit_seconds > 0)) {
+    if (!job.textures) distance = all_camera_depths(*views, depth, job.threads);
+    std::vector<const ImageU8*> photos;
+    std::vector<ImageU8> empty;
+    for (size_t i = 0; i < views->size(); ++i) {
+      photos.push_back(&(*views)[i].color);
+      const ImageF& d = distance[i];
+      ImageU8 e(d.width, d.height, 1);
+      for (size_t p = 0; p < d.pixels(); ++p) e.data[p] = d.data[p] > 0 ? 0 : 255;
+      empty.push_back(std::move(e));
+    }
+    BackdropPlateResult pr = make_backdrop_plate(photos, empty, fit_background(in->s, *views));
+    rep.counts["backdrop_plate_kept_share"] = pr.kept_share;
+    rep.errors["backdrop_plate_spread"] = pr.spread;
+    if (!job.textures) distance.assign(views->size(), ImageF{});
+    if (pr.plate) {
+      if (auto st = write_image(job.out / "backdrop.png", *pr.plate); !st) return std::unexpected(st.error());
+      model.backdrop = "backdrop.png";
+      plate = std::move(pr.plate);
+    } else {
+      rep.skipped["backdrop_plate_" + pr.skipped] = 1;
+    }
+    timer.lap("backdrop");
+  } else {
+    rep.skipped["backdrop_plate_not_an_object_capture_or_nothing_draws_from_photos"] = 1;
+  }
+
   if (job.fit_seconds > 0) {
-    if (auto st = fit_step(job, in->s, *views, volume, w0, model, sum); !st) return std::unexpected(st.error());
+    if (auto st = fit_step(job, in->s, *views, volume, w0, plate ? &*plate : nullptr, model, sum); !st)
+      return std::unexpected(st.error());
     timer.lap("fit");
   }
 

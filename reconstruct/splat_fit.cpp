@@ -218,7 +218,15 @@ inline bool footprint(const Projected& p, const TileState& st, int& xa, int& xb,
   return xa <= xb && ya <= yb;
 }
 
-void tile_forward(const SplatFrame& f, int tile, const float* bg, TileState& st) {
+// What lies behind the splats: one colour, or per pixel a plate (RGB, the
+// image's size) where the view has one.
+struct Behind {
+  const float* colour;
+  const ImageU8* plate = nullptr;
+  float at(int x, int y, int c) const { return plate ? float(plate->at(x, y, c)) * (1.f / 255.f) : colour[c]; }
+};
+
+void tile_forward(const SplatFrame& f, int tile, const Behind& bg, TileState& st) {
   const int tx = tile % f.tiles_x, ty = tile / f.tiles_x;
   st.x0 = tx * kTile, st.y0 = ty * kTile;
   st.w = std::min(kTile, f.width - st.x0), st.h = std::min(kTile, f.height - st.y0);
@@ -256,12 +264,12 @@ void tile_forward(const SplatFrame& f, int tile, const float* bg, TileState& st)
     }
   }
   for (int i = 0; i < n; ++i)
-    for (int c = 0; c < 3; ++c) st.C[3 * i + c] += st.T[i] * bg[c];
+    for (int c = 0; c < 3; ++c) st.C[3 * i + c] += st.T[i] * bg.at(st.x0 + i % st.w, st.y0 + i / st.w, c);
 }
 
 // Squared error of one image and, into `grads_out` (per thread, per projected
 // splat; null: the error only), the gradient of `scale` * squared error.
-double forward_backward(const SplatFrame& f, const ImageU8& target, const float* bg, float scale, int threads,
+double forward_backward(const SplatFrame& f, const ImageU8& target, const Behind& bg, float scale, int threads,
                         std::vector<std::vector<Grad>>* grads_out) {
   const int workers = std::max(1, std::min(worker_count(threads), f.tiles_x * f.tiles_y));
   if (grads_out) {
@@ -283,7 +291,7 @@ double forward_backward(const SplatFrame& f, const ImageU8& target, const float*
         const float diff = st.C[3 * i + c] - float(gt[c]) * (1.f / 255.f);
         e += double(diff) * diff;
         dC[3 * i + c] = 2.f * scale * diff;
-        S[3 * i + c] = st.T[i] * bg[c];  // what lies behind, the background first
+        S[3 * i + c] = st.T[i] * bg.at(x, y, c);  // what lies behind, the background first
       }
     }
     err[size_t(wk)] += e;
@@ -470,7 +478,7 @@ ImageF render_splats(const std::vector<Splat>& splats, int coeffs, const Intrins
   if (alpha_out) *alpha_out = ImageF(K.width, K.height, 1);
   for_tiles(f, threads, [&](int tile, int) {
     TileState st;
-    tile_forward(f, tile, background.data(), st);
+    tile_forward(f, tile, Behind{background.data()}, st);
     for (int i = 0; i < st.w * st.h; ++i) {
       const int x = st.x0 + i % st.w, y = st.y0 + i / st.w;
       for (int c = 0; c < 3; ++c) out.at(x, y, c) = st.C[3 * i + c];
@@ -529,6 +537,9 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
   for (const auto& v : views)
     if (!v.photo || v.photo->width != v.intrinsics.width || v.photo->height != v.intrinsics.height)
       return fail(ErrorCode::invalid, "fit: a photo's size differs from its camera's");
+  for (const auto& v : views)
+    if (v.backdrop && (v.backdrop->width != v.photo->width || v.backdrop->height != v.photo->height || v.backdrop->channels < 3))
+      return fail(ErrorCode::invalid, "fit: a backdrop plate's size differs from its photo's (or it is not RGB)");
   using clock = std::chrono::steady_clock;
   const auto t0 = clock::now();
   auto elapsed = [&] { return std::chrono::duration<double>(clock::now() - t0).count(); };
@@ -545,6 +556,17 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
     std::vector<ImageU8> l(views.size());
     parallel_for(int(views.size()), o.threads, [&](int i) { l[size_t(i)] = downscale(*views[size_t(i)].photo, s); });
     return pyramid.emplace(s, std::move(l)).first->second;
+  };
+  // The views' backdrop plates at each scale (views usually share one).
+  std::map<std::pair<const ImageU8*, int>, ImageU8> plates;
+  for (const auto& vw : views)
+    if (vw.backdrop) plates.try_emplace({vw.backdrop, 1}, *vw.backdrop);
+  auto behind = [&](size_t i, int s) -> Behind {
+    const ImageU8* b = views[i].backdrop;
+    if (!b) return Behind{o.background.data()};
+    auto it = plates.find({b, s});
+    if (it == plates.end()) it = plates.emplace(std::pair{b, s}, downscale(*b, s)).first;
+    return Behind{o.background.data(), &it->second};
   };
   // Stages, coarse to fine: the grid starts 2^coarse_levels times coarser
   // than the facets given (their cells merged), each stage ends by halving
@@ -605,7 +627,7 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
     for (size_t i = 0; i < views.size(); i += step_views) {
       const Intrinsics K = scaled(views[i].intrinsics, s0);
       sq += forward_backward(project(splats, coeffs, K, views[i].world_from_camera, o.threads), photos[i],
-                             o.background.data(), 1.f, o.threads, nullptr);
+                             behind(i, s0), 1.f, o.threads, nullptr);
       px += 3.0 * K.width * K.height;
     }
     initial_psnr = 10 * std::log10(1.0 / std::max(sq / px, 1e-12));
@@ -668,7 +690,7 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
         const SplatFrame f = project(splats, coeffs, K, view.world_from_camera, o.threads);
         const double t_b = elapsed();
         const float inv = 1.f / float(3.0 * K.width * K.height);
-        sq += forward_backward(f, target, o.background.data(), inv, o.threads, &grads);
+        sq += forward_backward(f, target, behind(size_t(vi), scale), inv, o.threads, &grads);
         const double t_c = elapsed();
         sum.seconds_project += t_b - t_a;
         sum.seconds_raster += t_c - t_b;

@@ -98,6 +98,9 @@ struct SplatView {
   Intrinsics intrinsics;
   Eigen::Isometry3d world_from_camera = Eigen::Isometry3d::Identity();
   const ImageU8* photo = nullptr;  // RGB (or more channels, the first three used), composited on the background
+  // What lies behind the object in this photo, per pixel (RGB, the photo's
+  // size: the backdrop plate), instead of the one background colour.
+  const ImageU8* backdrop = nullptr;
 };
 
 // The image formation above, on the CPU: RGB floats in [0, 1], W x H x 3;

@@ -74,7 +74,8 @@ Result<ViewCamera> SessionCameras::view(int frame) const {
   return v;
 }
 
-Result<ViewCamera> frame_view(const Model& model, const FrameSource& src, int frame) {
+Result<ViewCamera> frame_view(const Model& model, const FrameSource& src, int frame, bool* own_capture) {
+  if (own_capture) *own_capture = src.session.empty();
   if (src.session.empty()) {
     for (const auto& c : model.cameras)
       if (c.session_frame == frame) return ViewCamera{c.intrinsics, c.world_from_camera};
@@ -82,6 +83,7 @@ Result<ViewCamera> frame_view(const Model& model, const FrameSource& src, int fr
   }
   auto cams = SessionCameras::load(src);
   if (!cams) return std::unexpected(cams.error());
+  if (own_capture) *own_capture = model.session.empty() || model.session == cams->session.name;
   return cams->view(frame);
 }
 
@@ -136,6 +138,7 @@ struct Renderer {
   std::unique_ptr<GlContext> context;
   Model model;
   std::unique_ptr<ModelRenderer> renderer;
+  std::optional<ImageU8> backdrop;  // the model's backdrop plate, where it has one
 };
 
 // `splats`: a snapshot of the fit (splats_<S>s.bin) drawn instead of the model's.
@@ -150,6 +153,9 @@ Result<Renderer> open_model(const fs::path& dir, const fs::path& splats = {}) {
     if (!sp) return std::unexpected(sp.error());
     r.model.splats = std::move(*sp);
   }
+  auto plate = load_backdrop(r.model, dir);
+  if (!plate) return std::unexpected(plate.error());
+  r.backdrop = std::move(*plate);
   auto ctx = create_headless_context();
   if (!ctx) return std::unexpected(ctx.error());
   r.context = std::move(*ctx);
@@ -175,8 +181,9 @@ Result<RenderSummary> run_render_job(const RenderJob& job) {
   if (auto st = job.validate(); !st) return std::unexpected(st.error());
   auto r = open_model(job.model);
   if (!r) return std::unexpected(r.error());
+  bool own = false;
   Result<ViewCamera> view = !job.view_file.empty() ? load_view_file(job.view_file)
-                            : job.view              ? frame_view(r->model, job.source, *job.view)
+                            : job.view              ? frame_view(r->model, job.source, *job.view, &own)
                                                     : Result<ViewCamera>(fail("no view (validate() refuses this)"));
   if (!view) return std::unexpected(view.error());
   const ViewCamera v = scaled(*view, job.scale);
@@ -188,6 +195,12 @@ Result<RenderSummary> run_render_job(const RenderJob& job) {
   DrawOptions draw = job.draw;
   // The background asked for, else the model's own (the capture's), else black.
   if (const auto& bg = job.background ? job.background : r->model.background) std::copy(bg->begin(), bg->end(), draw.background);
+  // A frame of the model's own capture, at the photos' size: on its backdrop plate.
+  if (own && job.backdrop_plate && !job.background && !job.environment && r->backdrop && r->backdrop->width == v.K.width &&
+      r->backdrop->height == v.K.height)
+    draw.backdrop = &*r->backdrop;
+  else if (r->backdrop)
+    rep.skipped[!job.backdrop_plate || job.background ? "backdrop_plate_not_asked" : "backdrop_plate_not_this_view"] = 1;
   PreparedEnvironment env;
   if (job.environment) {
     auto e = prepare_environment(*job.environment, r->model.bounds);
@@ -315,14 +328,15 @@ struct EvalSeries {
 // whole image and over the object's pixels joined with every drawn pixel: a
 // row of eval.csv, the strip PNG (photo | methods), the figures into `series`.
 Status eval_frame(const EvalJob& job, const Renderer& m, const ViewCamera& view, int frame, bool held,
-                  std::vector<EvalMethod>& methods, const EvalPhoto& e, EvalSeries& series, SweepTable& table,
-                  Report& rep) {
+                  std::vector<EvalMethod>& methods, const EvalPhoto& e, const ImageU8* plate, EvalSeries& series,
+                  SweepTable& table, Report& rep) {
   std::vector<ImageU8> drawn;
   std::vector<DrawStats> stats;
   auto fb = Framebuffer::create(view.K.width, view.K.height);
   if (!fb) return std::unexpected(fb.error());
   for (auto& method : methods) {
     std::copy(e.background.begin(), e.background.end(), method.draw.background);
+    method.draw.backdrop = plate;
     auto st = m.renderer->draw(view, method.draw, *fb);
     if (!st) return std::unexpected(st.error());
     drawn.push_back(fb->read_rgba());
@@ -454,7 +468,8 @@ Result<EvalSummary> run_eval_job(const EvalJob& job) {
   // The model's own frames: those of its cameras, when the session is the
   // one it was made from (another session's frame i is a different view).
   std::set<int> in_model;
-  if (r->model.session.empty() || r->model.session == s.name)
+  const bool own_capture = r->model.session.empty() || r->model.session == s.name;
+  if (own_capture)
     for (const auto& c : r->model.cameras) in_model.insert(c.session_frame);
   std::error_code ec;
   fs::create_directories(job.out, ec);
@@ -481,7 +496,13 @@ Result<EvalSummary> run_eval_job(const EvalJob& job) {
     sum.mask_source = photo->mask_source;
     sum.background = photo->background;
     const bool held = !in_model.count(frame);
-    if (auto st = eval_frame(job, *r, *view, frame, held, methods, *photo, series, table, rep); !st)
+    // Frames of the model's own capture: on its backdrop plate (the fixed
+    // camera's view behind the object), where it has one.
+    const ImageU8* plate = nullptr;
+    if (own_capture && job.backdrop_plate && !job.background && r->backdrop && r->backdrop->width == view->K.width &&
+        r->backdrop->height == view->K.height)
+      plate = &*r->backdrop, ++sum.frames_on_backdrop_plate;
+    if (auto st = eval_frame(job, *r, *view, frame, held, methods, *photo, plate, series, table, rep); !st)
       return std::unexpected(st.error());
     progress.tick();
   }
@@ -498,6 +519,8 @@ Result<EvalSummary> run_eval_job(const EvalJob& job) {
   sum.facets = r->model.facets.size();
   rep.counts["views"] = double(sum.views);
   rep.counts["held_out_views"] = double(sum.held_out_views);
+  if (r->backdrop) rep.counts["frames_on_backdrop_plate"] = double(sum.frames_on_backdrop_plate);
+  if (r->backdrop && (!job.backdrop_plate || job.background)) rep.skipped["backdrop_plate_not_asked"] = 1;
   rep.counts["facets"] = double(sum.facets);
   rep.params["mask"] = sum.mask_source;
   rep.params["background"] = fmt::format("{:.3g},{:.3g},{:.3g}", sum.background[0], sum.background[1], sum.background[2]);

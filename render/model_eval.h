@@ -60,7 +60,9 @@ struct SessionCameras {
 
 // The camera of session frame `frame`: the model's own when the frame is one
 // of its cameras, else from the session (needs `source.session`).
-Result<ViewCamera> frame_view(const Model& model, const FrameSource& source, int frame);
+// `own_capture` (optional): whether the frame is of the capture the model was
+// made from (its backdrop plate applies).
+Result<ViewCamera> frame_view(const Model& model, const FrameSource& source, int frame, bool* own_capture = nullptr);
 
 struct RenderJob {
   std::filesystem::path model;
@@ -72,6 +74,9 @@ struct RenderJob {
   FrameSource source;
   DrawOptions draw;
   double scale = 1;           // image size relative to the view's
+  // A frame of the model's own capture drawn on its backdrop plate (where it
+  // has one and the image is the photos' size); false: the background colour.
+  bool backdrop_plate = true;
   std::optional<EnvironmentSetup> environment;  // backdrop, glossy floor and props
 
   // The options' own ranges, an error naming the field ("scale: ...").
@@ -103,6 +108,9 @@ struct EvalJob {
   std::filesystem::path splats;  // a snapshot of the fit (splats_<S>s.bin) drawn as "fitted" instead of the model's
   // RGB in [0, 1]; empty: the session's background, else the backdrop's colour, else black.
   std::optional<std::array<float, 3>> background;
+  // Frames of the model's own capture drawn on its backdrop plate (where it
+  // has one); false: on the background colour.
+  bool backdrop_plate = true;
 
   // The options' own needs, an error naming the field ("frames: ...").
   Status validate() const;
@@ -125,6 +133,7 @@ struct EvalMethodFigures {
 struct EvalSummary {
   std::vector<EvalMethodFigures> methods;  // billboards first
   size_t views = 0, held_out_views = 0, facets = 0;
+  size_t frames_on_backdrop_plate = 0;  // drawn on the model's backdrop plate
   std::string mask_source;                 // ground_truth, matte, backdrop or whole_image
   std::array<float, 3> background{};       // of the last frame
   double seconds = 0;

@@ -704,6 +704,7 @@ ModelRenderer::~ModelRenderer() {
   if (color_array_) glDeleteTextures(1, &color_array_);
   if (distance_array_) glDeleteTextures(1, &distance_array_);
   if (composited_texture_) glDeleteTextures(1, &composited_texture_);
+  if (backdrop_texture_) glDeleteTextures(1, &backdrop_texture_);
 }
 
 // One draw's view, options and depth range, shared by its passes.
@@ -759,6 +760,10 @@ Result<DrawStats> ModelRenderer::draw(const ViewCamera& view, const DrawOptions&
     const GpuMesh& g = meshes_[o.geometry == DrawOptions::Geometry::kSurface ? 1 : 0];
     draw_mesh(pass, g, g.triangles, false, st);
   }
+  if (o.backdrop) {
+    if (auto b = draw_backdrop(*o.backdrop, target); !b) return std::unexpected(b.error());
+    st.backdrop_drawn = true;
+  }
   glBindVertexArray(0);
   st.cpu_ms = clock.seconds() * 1e3;
   glFinish();
@@ -771,7 +776,10 @@ Result<DrawStats> ModelRenderer::draw(const ViewCamera& view, const DrawOptions&
 // (backdrop, glossy floor and props) into the same depth buffer.
 Status ModelRenderer::clear_and_environment(const Pass& pass, const Framebuffer& target, DrawStats& st) {
   target.bind();
-  glClearColor(pass.o.background[0], pass.o.background[1], pass.o.background[2], 0.f);
+  // With a backdrop plate: cleared to nothing, the plate laid under the model
+  // at the end (draw_backdrop).
+  if (pass.o.backdrop) glClearColor(0.f, 0.f, 0.f, 0.f);
+  else glClearColor(pass.o.background[0], pass.o.background[1], pass.o.background[2], 0.f);
   glClearDepth(1.0);
   glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
   if (!pass.o.environment) return {};
@@ -953,6 +961,46 @@ Status ModelRenderer::draw_splats(const Pass& pass, const Framebuffer& target, D
   glDisable(GL_BLEND);
   glEnable(GL_DEPTH_TEST);
   splat_target_->blit_to(target);
+  return {};
+}
+
+// The backdrop plate laid "under" what is drawn (colour + (1 - alpha) x
+// plate; alpha kept: what the model covers), one full-viewport triangle.
+Status ModelRenderer::draw_backdrop(const ImageU8& plate, const Framebuffer& target) {
+  const int W = target.width(), H = target.height();
+  if (plate.width != W || plate.height != H || plate.channels < 3)
+    return fail(fmt::format("backdrop plate is {}x{}x{}, the target {}x{} RGB", plate.width, plate.height, plate.channels, W, H));
+  // Rows top to bottom as the CPU pass's image, transmittance 0 (the
+  // program draws 1 - a as alpha, which the blend leaves out).
+  backdrop_rgba_.resize(size_t(W) * H * 4);
+  for (size_t p = 0; p < plate.pixels(); ++p) {
+    for (size_t c = 0; c < 3; ++c) backdrop_rgba_[p * 4 + c] = float(plate.data[p * size_t(plate.channels) + c]) * (1.f / 255.f);
+    backdrop_rgba_[p * 4 + 3] = 0.f;
+  }
+  if (!backdrop_texture_ || backdrop_width_ != W || backdrop_height_ != H) {
+    if (backdrop_texture_) glDeleteTextures(1, &backdrop_texture_);
+    glGenTextures(1, &backdrop_texture_);
+    glBindTexture(GL_TEXTURE_2D, backdrop_texture_);
+    glTexStorage2D(GL_TEXTURE_2D, 1, GL_RGBA32F, W, H);
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+    backdrop_width_ = W, backdrop_height_ = H;
+  }
+  glActiveTexture(GL_TEXTURE0);
+  glBindTexture(GL_TEXTURE_2D, backdrop_texture_);
+  glPixelStorei(GL_UNPACK_ALIGNMENT, 4);
+  glTexSubImage2D(GL_TEXTURE_2D, 0, 0, 0, W, H, GL_RGBA, GL_FLOAT, backdrop_rgba_.data());
+  target.bind();
+  glDisable(GL_DEPTH_TEST);
+  glEnable(GL_BLEND);
+  glBlendFuncSeparate(GL_ONE_MINUS_DST_ALPHA, GL_ONE, GL_ZERO, GL_ONE);
+  const GlProgram& p = programs_->composited;
+  glUseProgram(p.id());
+  glUniform1i(p.uniform("u_image"), 0);
+  glBindVertexArray(splat_vao_);
+  glDrawArrays(GL_TRIANGLES, 0, 3);
+  glDisable(GL_BLEND);
+  glEnable(GL_DEPTH_TEST);
   return {};
 }
 

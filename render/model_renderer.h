@@ -86,6 +86,10 @@ struct DrawOptions {
   // out the billboards whose facets all reach it; 0: billboards everywhere.
   double mesh_reliability = 0;
   float background[3] = {0.f, 0.f, 0.f};
+  // The backdrop plate (RGB, the target's size; not owned): drawn behind the
+  // model in place of `background`, for frames of the model's own capture
+  // seen from its cameras (Model::backdrop). Null: the background colour.
+  const ImageU8* backdrop = nullptr;
   // kSplats: where the fitted billboards are composited. kAuto: on the CPU
   // (reconstruct/splat_composite.h: front to back, stopping at the first
   // opaque layer) when the OpenGL renderer is itself software (llvmpipe,
@@ -117,6 +121,7 @@ struct DrawStats {
   double cpu_ms = 0;          // selection + upload + submit
   double frame_ms = 0;        // until the image is finished (glFinish)
   bool environment_drawn = false, envmap_bound = false;
+  bool backdrop_drawn = false;  // the plate behind the model
 };
 
 class ModelRenderer {
@@ -159,6 +164,7 @@ class ModelRenderer {
   void draw_billboards(const Pass& pass, DrawStats& st);
   Status draw_splats(const Pass& pass, const Framebuffer& target, DrawStats& st);
   Status composite_splats_on_cpu(const Pass& pass, const Framebuffer& target, DrawStats& st);
+  Status draw_backdrop(const ImageU8& plate, const Framebuffer& target);
   Model model_;
   std::unique_ptr<Programs> programs_;
   unsigned color_array_ = 0, distance_array_ = 0;
@@ -183,6 +189,9 @@ class ModelRenderer {
   std::vector<float> composited_;
   unsigned composited_texture_ = 0;
   int composited_width_ = 0, composited_height_ = 0;
+  std::vector<float> backdrop_rgba_;
+  unsigned backdrop_texture_ = 0;
+  int backdrop_width_ = 0, backdrop_height_ = 0;
 };
 
 }  // namespace s2r

@@ -555,6 +555,85 @@ TEST(Fitted, RenderDefaultsToTheModelsBackground) {
   EXPECT_NE(bad.error().message.find("background"), std::string::npos) << bad.error().message;
 }
 
+// The backdrop plate lies under whatever is drawn: colour + (1 - alpha) x
+// plate, the alpha (what the model covers) unchanged, for the fit in both
+// passes, the billboards and the patch mesh; render puts it behind a frame
+// of the model's own capture and not behind an arbitrary pose, and a plate
+// of another size does not load.
+TEST(Fitted, TheBackdropPlateLiesUnderTheModel) {
+  TestModel t = make_model("backdrop_plate", kArc);
+  put_splats(t.model, square_splats());
+  ASSERT_TRUE(save_model(t.dir, t.model));
+  Gl g = open(t);
+  ASSERT_TRUE(g.renderer);
+  const ViewCamera v = arc_camera(7);
+  ImageU8 plate(v.K.width, v.K.height, 3);
+  for (int y = 0; y < plate.height; ++y)
+    for (int x = 0; x < plate.width; ++x)
+      for (int c = 0; c < 3; ++c) plate.at(x, y, c) = uint8_t((x * 2 + y * (c + 1) + 60 * c) % 256);
+  using G = DrawOptions::Geometry;
+  using P = DrawOptions::FittedPass;
+  for (auto [geometry, pass] : {std::pair{G::kSplats, P::kGl}, std::pair{G::kSplats, P::kCpu}, std::pair{G::kBillboards, P::kAuto},
+                                std::pair{G::kMesh, P::kAuto}}) {
+    if (geometry == G::kMesh && !g.renderer->has_mesh()) continue;
+    DrawOptions o;  // black behind
+    o.geometry = geometry;
+    o.fitted_pass = pass;
+    const ImageU8 bare = draw(g, v, o);
+    o.backdrop = &plate;
+    DrawStats st;
+    const ImageU8 on = draw(g, v, o, &st);
+    EXPECT_TRUE(st.backdrop_drawn);
+    int worst = 0;
+    size_t covered = 0, open = 0;
+    for (size_t i = 0; i < plate.pixels(); ++i) {
+      const int a = bare.data[i * 4 + 3];
+      covered += a >= 128, open += a == 0;
+      EXPECT_EQ(on.data[i * 4 + 3], a);
+      for (size_t c = 0; c < 3; ++c) {
+        const double want = bare.data[i * 4 + c] + (255 - a) / 255.0 * plate.data[i * 3 + c];
+        worst = std::max(worst, int(std::lround(std::abs(on.data[i * 4 + c] - std::min(255.0, want)))));
+      }
+    }
+    EXPECT_LE(worst, 2) << geometry_name(geometry);
+    EXPECT_GT(covered, plate.pixels() / 20) << geometry_name(geometry);
+    EXPECT_GT(open, plate.pixels() / 5) << geometry_name(geometry);
+  }
+  // Through the render job: the model's own camera 0 on the plate, a pose
+  // from a file on the background colour.
+  ASSERT_TRUE(write_image(t.dir / "backdrop.png", plate));
+  t.model.backdrop = "backdrop.png";
+  t.model.cameras[0].session_frame = 0;
+  ASSERT_TRUE(save_model(t.dir, t.model));
+  RenderJob job;
+  job.model = t.dir;
+  job.view = 0;
+  job.draw.geometry = G::kSplats;
+  job.out = t.dir / "own.png";
+  auto r = run_render_job(job);
+  ASSERT_TRUE(r) << r.error().message;
+  auto own = read_image_u8(job.out);
+  ASSERT_TRUE(own);
+  EXPECT_EQ(own->at(0, 0, 1), plate.at(0, 0, 1));
+  EXPECT_EQ(own->at(3, 1, 2), plate.at(3, 1, 2));
+  ASSERT_TRUE(save_view_file(t.dir / "view.json", ViewCamera{t.model.cameras[0].intrinsics, t.model.cameras[0].world_from_camera}));
+  job.view.reset();
+  job.view_file = t.dir / "view.json";
+  job.out = t.dir / "pose.png";
+  r = run_render_job(job);
+  ASSERT_TRUE(r) << r.error().message;
+  EXPECT_EQ(r->report.skipped.count("backdrop_plate_not_this_view"), 1u);
+  auto pose = read_image_u8(job.out);
+  ASSERT_TRUE(pose);
+  EXPECT_EQ(pose->at(3, 1, 2), 0);
+  ASSERT_TRUE(write_image(t.dir / "backdrop.png", ImageU8(8, 8, 3)));
+  auto loaded = load_model(t.dir);
+  ASSERT_TRUE(loaded);
+  auto bad = load_backdrop(*loaded, t.dir);
+  ASSERT_FALSE(bad);
+  EXPECT_NE(bad.error().message.find("8x8"), std::string::npos) << bad.error().message;
+}
+
 TEST(ViewFile, RoundTripsAndRejectsNaN) {
   const fs::path p = fs::path(testing::TempDir()) / "s2r_view.json";
   const ViewCamera v = arc_camera(12);
