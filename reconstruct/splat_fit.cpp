@@ -441,7 +441,7 @@ std::string DivergenceGuard::observe(int epoch, int scale, double psnr) {
   auto it = std::find_if(best_.begin(), best_.end(), [&](const auto& b) { return b.first == scale; });
   if (it == best_.end()) it = best_.insert(best_.end(), {scale, psnr});
   it->second = std::max(it->second, psnr);
-  if (!(psnr >= it->second - 3) || (stage_ == 0 && scale == initial_scale_ && !(psnr >= initial_)))
+  if (!(psnr >= it->second - 3) || (stage_ == 0 && scale == initial_scale_ && !(psnr >= initial_ - 0.5)))
     return fmt::format("fit: diverged: training PSNR {:.1f} dB at epoch {} (at the start {:.1f} dB, the best at this "
                        "scale in this stage {:.1f} dB)",
                        psnr, epoch, initial_, it->second);

@@ -74,9 +74,10 @@ inline int sh_coeffs(int degree) { return (degree + 1) * (degree + 1); }
 // in the renderer.
 void radix_sort(std::vector<std::pair<uint32_t, uint32_t>>& pairs);
 
-// The fit's divergence test, epoch by epoch: an epoch's training PSNR under
-// the error before any step (the first stage, at the scale that error was
-// measured at), or more than 3 dB under
+// The fit's divergence test, epoch by epoch: an epoch's training PSNR more
+// than 0.5 dB under the error before any step (the first stage, at the scale
+// that error was measured at: an epoch of one step is that error, summed
+// over the tiles in another order), or more than 3 dB under
 // the best epoch of the same stage at the same scale (an epoch's figure mixes
 // the steps' states, so 3 dB). A new stage starts its own record: a stage
 // begins with its facets just split, a few dB under where the last one
