@@ -86,4 +86,43 @@ Result<double> ssim(const ImageU8& a, const ImageU8& b, const ImageU8* mask) {
   return sum / double(n);
 }
 
+Result<ImageU8> matte_band(const ImageU8& matte, int band_px) {
+  if (matte.empty() || matte.channels != 1) return fail("matte band: the matte must be a non-empty single-channel image");
+  if (band_px < 0) return fail("matte band: band_px must be >= 0");
+  cv::Mat inside;
+  cv::threshold(as_mat(matte), inside, 127, 255, cv::THRESH_BINARY);
+  cv::Mat grown, shrunk;  // not headers of `inside`: dilate and erode would write into it
+  if (band_px == 0) grown = inside, shrunk = inside;
+  else {
+    const cv::Mat k = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * band_px + 1, 2 * band_px + 1));
+    // Pixels outside the image neither grow nor shrink the object.
+    cv::dilate(inside, grown, k, cv::Point(-1, -1), 1, cv::BORDER_CONSTANT, cv::Scalar(0));
+    cv::erode(inside, shrunk, k, cv::Point(-1, -1), 1, cv::BORDER_CONSTANT, cv::Scalar(255));
+  }
+  ImageU8 band(matte.width, matte.height, 1, 0);
+  for (int y = 0; y < matte.height; ++y) {
+    const uint8_t *g = grown.ptr<uint8_t>(y), *s = shrunk.ptr<uint8_t>(y);
+    for (int x = 0; x < matte.width; ++x) {
+      const uint8_t m = matte.at(x, y);
+      band.at(x, y) = (g[x] != s[x] || (m > 0 && m < 255)) ? 255 : 0;
+    }
+  }
+  return band;
+}
+
+Result<MatteError> matte_error(const ImageU8& alpha, const ImageU8& matte, const ImageU8& band) {
+  if (alpha.channels != 1 || matte.channels != 1) return fail("matte error: alpha and matte must be single-channel");
+  if (auto st = check_pair(alpha, matte, &band); !st) return std::unexpected(st.error());
+  double all = 0, edge = 0;
+  MatteError e;
+  for (size_t i = 0; i < alpha.pixels(); ++i) {
+    const double d = std::abs(double(alpha.data[i]) - double(matte.data[i])) / 255.0;
+    all += d;
+    if (band.data[i]) edge += d, ++e.edge_pixels;
+  }
+  e.mae = all / double(alpha.pixels());
+  e.edge_mae = e.edge_pixels ? edge / double(e.edge_pixels) : 0.0;
+  return e;
+}
+
 }  // namespace s2r

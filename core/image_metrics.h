@@ -17,4 +17,20 @@ namespace s2r {
 Result<double> psnr(const ImageU8& a, const ImageU8& b, const ImageU8* mask = nullptr);
 Result<double> ssim(const ImageU8& a, const ImageU8& b, const ImageU8* mask = nullptr);
 
+// A silhouette's band: the pixels whose matte is fractional (1..254) or
+// within `band_px` pixels (a square neighbourhood) of where the matte crosses
+// one half. 255 in the band, 0 elsewhere; an empty band where the matte is
+// all inside or all outside. `matte` is single-channel; band_px >= 0.
+Result<ImageU8> matte_band(const ImageU8& matte, int band_px = 2);
+
+// A drawing's coverage (its alpha, single channel) against a true fractional
+// matte: the mean absolute difference in [0, 1] over every pixel, and over
+// the silhouette's band (matte_band), where hard or haloed edges show.
+// edge_mae is 0 with edge_pixels 0 when the band is empty.
+struct MatteError {
+  double mae = 0, edge_mae = 0;
+  size_t edge_pixels = 0;
+};
+Result<MatteError> matte_error(const ImageU8& alpha, const ImageU8& matte, const ImageU8& band);
+
 }  // namespace s2r

@@ -72,5 +72,53 @@ TEST(Ssim, StructureLowersTheScoreAndMaskSelects) {
   EXPECT_NEAR(*ssim(a, b, &mask), 1.0, 1e-9);  // the masked half is identical (window stays left of x=16)
 }
 
+// A 20x20 square in a 40x40 matte: the band is the ring within 2 px of its
+// edge (a 24x24 square less a 16x16 one), plus any fractional pixel.
+TEST(MatteError, BandAndErrorsByHand) {
+  ImageU8 matte(40, 40, 1, 0);
+  for (int y = 10; y < 30; ++y)
+    for (int x = 10; x < 30; ++x) matte.at(x, y) = 255;
+  auto band = matte_band(matte, 2);
+  ASSERT_TRUE(band);
+  size_t n = 0;
+  for (uint8_t v : band->data) n += v != 0;
+  EXPECT_EQ(n, size_t(24 * 24 - 16 * 16));
+  EXPECT_EQ(band->at(10, 20), 255);
+  EXPECT_EQ(band->at(20, 20), 0);
+  EXPECT_EQ(band->at(2, 2), 0);
+  matte.at(0, 0) = 100;  // fractional: in the band wherever it lies
+  band = matte_band(matte, 2);
+  EXPECT_EQ(band->at(0, 0), 255);
+  // Identical coverage: no error. A hard square one pixel too wide on every
+  // side: 84 pixels off by 1 over 1600, all of them in the band.
+  auto same = matte_error(matte, matte, *band);
+  ASSERT_TRUE(same);
+  EXPECT_EQ(same->mae, 0.0);
+  EXPECT_EQ(same->edge_pixels, size_t(24 * 24 - 16 * 16 + 1));
+  matte.at(0, 0) = 0;
+  band = matte_band(matte, 2);
+  ImageU8 fat(40, 40, 1, 0);
+  for (int y = 9; y < 31; ++y)
+    for (int x = 9; x < 31; ++x) fat.at(x, y) = 255;
+  auto e = matte_error(fat, matte, *band);
+  ASSERT_TRUE(e);
+  EXPECT_NEAR(e->mae, 84.0 / 1600.0, 1e-12);
+  EXPECT_NEAR(e->edge_mae, 84.0 / double(24 * 24 - 16 * 16), 1e-12);
+  // All inside (the object fills the frame): no silhouette, an empty band.
+  auto full = matte_band(ImageU8(8, 8, 1, 255), 2);
+  ASSERT_TRUE(full);
+  for (uint8_t v : full->data) EXPECT_EQ(v, 0);
+  EXPECT_EQ(matte_error(ImageU8(8, 8, 1, 255), ImageU8(8, 8, 1, 255), *full)->edge_pixels, 0u);
+}
+
+TEST(MatteError, BadInputIsAnError) {
+  EXPECT_FALSE(matte_band(ImageU8(8, 8, 3), 2));
+  EXPECT_FALSE(matte_band(ImageU8(8, 8, 1), -1));
+  EXPECT_FALSE(matte_band(ImageU8{}, 2));
+  const ImageU8 m(8, 8, 1), band(8, 8, 1, 255);
+  EXPECT_FALSE(matte_error(ImageU8(8, 7, 1), m, band));
+  EXPECT_FALSE(matte_error(ImageU8(8, 8, 4), ImageU8(8, 8, 4), band));
+}
+
 }  // namespace
 }  // namespace s2r

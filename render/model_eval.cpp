@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <numbers>
 #include <set>
 
@@ -232,6 +233,10 @@ Result<RenderSummary> run_render_job(const RenderJob& job) {
 
 namespace {
 
+// The silhouette band's half-width in pixels: a matte's fractional edge and
+// the pixels beside it, where a drawing's hard edges or dark fringes show.
+constexpr int kMatteBandPx = 2;
+
 // A way of drawing the model that eval compares (billboards, and the baselines).
 struct EvalMethod {
   std::string name;
@@ -268,6 +273,10 @@ std::vector<EvalMethod> eval_methods(const EvalJob& job, const ModelRenderer& re
 // A frame's photo on the evaluation's background, the object's pixels in it.
 struct EvalPhoto {
   ImageU8 photo, object;
+  // The frame's own fractional matte (a data set's alpha) and its
+  // silhouette band (matte_band): what each drawing's coverage is checked
+  // against. Empty without a matte.
+  std::optional<ImageU8> matte, band;
   std::string mask_source = "whole_image";
   std::array<float, 3> background{0, 0, 0};
 };
@@ -315,21 +324,30 @@ Result<EvalPhoto> eval_photo(const Session& s, int frame, const Intrinsics& K, c
   } else if (s.layout == Layout::kObjectCentre) {
     if (auto m = backdrop_mask(e.photo)) e.object = std::move(*m), e.mask_source = "backdrop";
   }
+  if (matte) {
+    auto band = matte_band(*matte, kMatteBandPx);
+    if (!band) return std::unexpected(band.error());
+    e.band = std::move(*band);
+    e.matte = std::move(matte);
+  }
   return e;
 }
 
 // Every method's figures over the frames, for the means.
 struct EvalSeries {
   std::map<std::string, std::vector<double>> psnr, ssim, full_psnr, full_ssim, frame_ms, coverage, psnr_held, psnr_input,
-      full_psnr_held;
+      full_psnr_held, matte_mae, matte_edge_mae, edge_psnr;
 };
 
 // One frame drawn by every method and compared with its photo, over the
 // whole image and over the object's pixels joined with every drawn pixel: a
 // row of eval.csv, the strip PNG (photo | methods), the figures into `series`.
-Status eval_frame(const EvalJob& job, const Renderer& m, const ViewCamera& view, int frame, bool held,
+// With `mattes` (every evaluated frame has one) each drawing's coverage is
+// checked against the frame's matte too.
+Status eval_frame(const EvalJob& job, const Renderer& m, const ViewCamera& view, int frame, bool held, bool mattes,
                   std::vector<EvalMethod>& methods, const EvalPhoto& e, const ImageU8* plate, EvalSeries& series,
                   SweepTable& table, Report& rep) {
+  if (mattes && !e.matte) return fail(fmt::format("frame {}: has no matte, the frames before it had", frame));
   std::vector<ImageU8> drawn;
   std::vector<DrawStats> stats;
   auto fb = Framebuffer::create(view.K.width, view.K.height);
@@ -377,6 +395,25 @@ Status eval_frame(const EvalJob& job, const Renderer& m, const ViewCamera& view,
     rep.errors[fmt::format("psnr_db_{}_frame_{:04d}", n, frame)] = *p;
     rep.errors[fmt::format("full_psnr_db_{}_frame_{:04d}", n, frame)] = *fp;
     for (double x : {*p, *q, cov, stats[k].frame_ms, *fp, *fq}) row.push_back(x);
+    if (mattes) {
+      // The drawing's coverage against the frame's true matte; the colour
+      // in its silhouette band (dark or light fringes).
+      ImageU8 alpha(drawn[k].width, drawn[k].height, 1);
+      for (size_t i = 0; i < alpha.pixels(); ++i) alpha.data[i] = drawn[k].data[i * 4 + 3];
+      auto me = matte_error(alpha, *e.matte, *e.band);
+      if (!me) return fail(fmt::format("frame {}: {}", frame, me.error().message));
+      double edge = std::numeric_limits<double>::quiet_NaN();
+      if (me->edge_pixels) {
+        auto ep = psnr(rgb, e.photo, &*e.band);
+        if (!ep) return fail(fmt::format("frame {}: {}", frame, ep.error().message));
+        edge = *ep;
+        series.edge_psnr[n].push_back(*ep);
+        series.matte_edge_mae[n].push_back(me->edge_mae);
+        rep.errors[fmt::format("matte_edge_mae_{}_frame_{:04d}", n, frame)] = me->edge_mae;
+      }
+      series.matte_mae[n].push_back(me->mae);
+      for (double x : {me->mae, me->edge_mae, edge}) row.push_back(x);
+    }
     if (k == 0) add_selection(rep, stats[k], fmt::format("_frame_{:04d}", frame));
   }
   table.rows.push_back(row);
@@ -403,6 +440,11 @@ void eval_summary(const EvalJob& job, const std::vector<EvalMethod>& methods, Ev
     if (!series.psnr_held[n].empty()) f.psnr_db_held_out = mean_of(series.psnr_held[n]);
     if (!series.full_psnr_held[n].empty()) f.full_psnr_db_held_out = mean_of(series.full_psnr_held[n]);
     if (!series.psnr_input[n].empty()) f.psnr_db_input_views = mean_of(series.psnr_input[n]);
+    if (!series.matte_mae[n].empty()) f.matte_mae = mean_of(series.matte_mae[n]);
+    if (!series.matte_edge_mae[n].empty()) {
+      f.matte_edge_mae = mean_of(series.matte_edge_mae[n]);
+      f.edge_psnr_db = mean_of(series.edge_psnr[n]);
+    }
     rep.errors["psnr_db_" + n] = f.psnr_db;
     rep.errors["ssim_" + n] = f.ssim;
     rep.errors["full_psnr_db_" + n] = f.full_psnr_db;
@@ -412,6 +454,9 @@ void eval_summary(const EvalJob& job, const std::vector<EvalMethod>& methods, Ev
     if (f.psnr_db_held_out) rep.errors["psnr_db_" + n + "_held_out"] = *f.psnr_db_held_out;
     if (f.full_psnr_db_held_out) rep.errors["full_psnr_db_" + n + "_held_out"] = *f.full_psnr_db_held_out;
     if (f.psnr_db_input_views) rep.errors["psnr_db_" + n + "_input_views"] = *f.psnr_db_input_views;
+    if (f.matte_mae) rep.errors["matte_mae_" + n] = *f.matte_mae;
+    if (f.matte_edge_mae) rep.errors["matte_edge_mae_" + n] = *f.matte_edge_mae;
+    if (f.edge_psnr_db) rep.errors["edge_psnr_db_" + n] = *f.edge_psnr_db;
     sum.methods.push_back(std::move(f));
   }
   if (auto g = sum.gain_db("hybrid", "billboards")) {
@@ -483,9 +528,16 @@ Result<EvalSummary> run_eval_job(const EvalJob& job) {
   if (!r->renderer->has_textures()) rep.skipped["methods_without_camera_images"] = 1;
   SweepTable table;
   table.columns = {"frame", "held_out", "mask_pixels"};
-  for (const auto& m : methods)
+  // Every frame with a matte (a data set's alpha): the coverage checked too.
+  const bool mattes = std::all_of(job.frames.begin(), job.frames.end(), [&](int f) {
+    return f >= 0 && size_t(f) < s.frames.size() && !s.frames[size_t(f)].mask.empty();
+  });
+  for (const auto& m : methods) {
     for (const char* q : {"psnr_db_", "ssim_", "coverage_", "frame_ms_", "full_psnr_db_", "full_ssim_"})
       table.columns.push_back(q + m.name);
+    if (mattes)
+      for (const char* q : {"matte_mae_", "matte_edge_mae_", "edge_psnr_db_"}) table.columns.push_back(q + m.name);
+  }
   EvalSeries series;
   Progress progress("eval", job.frames.size());
   for (int frame : job.frames) {
@@ -502,7 +554,7 @@ Result<EvalSummary> run_eval_job(const EvalJob& job) {
     if (own_capture && job.backdrop_plate && !job.background && r->backdrop && r->backdrop->width == view->K.width &&
         r->backdrop->height == view->K.height)
       plate = &*r->backdrop, ++sum.frames_on_backdrop_plate;
-    if (auto st = eval_frame(job, *r, *view, frame, held, methods, *photo, plate, series, table, rep); !st)
+    if (auto st = eval_frame(job, *r, *view, frame, held, mattes, methods, *photo, plate, series, table, rep); !st)
       return std::unexpected(st.error());
     progress.tick();
   }
@@ -523,6 +575,8 @@ Result<EvalSummary> run_eval_job(const EvalJob& job) {
   if (r->backdrop && (!job.backdrop_plate || job.background)) rep.skipped["backdrop_plate_not_asked"] = 1;
   rep.counts["facets"] = double(sum.facets);
   rep.params["mask"] = sum.mask_source;
+  if (!mattes) rep.skipped["matte_check_frames_without_matte"] = 1;
+  else rep.params["matte_band_px"] = double(kMatteBandPx);
   rep.params["background"] = fmt::format("{:.3g},{:.3g},{:.3g}", sum.background[0], sum.background[1], sum.background[2]);
   rep.params["cameras"] = double(job.draw.selection.cameras);
   rep.params["renderer"] = r->context->describe();

@@ -15,6 +15,8 @@
 //     session's matte, else the backdrop mask, else the whole image) joined
 //     with every pixel any method drew, so drawing onto the background is an
 //     error too.
+// Frames with a true matte (a data set's alpha) also get each drawing's
+// coverage checked against it, over the image and over the silhouette's band.
 #pragma once
 
 #include <array>
@@ -126,6 +128,11 @@ struct EvalMethodFigures {
   double frame_ms = 0;
   std::optional<double> psnr_db_held_out, psnr_db_input_views;  // masked, over those frames only
   std::optional<double> full_psnr_db_held_out;
+  // Frames with a true fractional matte (a data set's alpha): the drawing's
+  // coverage against it, mean |alpha - matte| in [0, 1] over the image and
+  // over the silhouette's band (the matte's edge and 2 px either side), and
+  // the colour's PSNR in that band (where dark or light fringes show).
+  std::optional<double> matte_mae, matte_edge_mae, edge_psnr_db;
 };
 
 // What run_eval_job measured, typed; report.json adds each frame's figures
