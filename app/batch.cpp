@@ -28,6 +28,7 @@
 
 #include "capture/ground_truth.h"
 #include "capture/session.h"
+#include "app/html.h"
 #include "core/atomic_file.h"
 #include "core/json_fields.h"
 
@@ -63,23 +64,7 @@ std::string host_name() {
   return buf;
 }
 
-std::string number(double v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%.4g", v);
-  return buf;
-}
-
-std::string html_escape(const std::string& s) {
-  std::string out;
-  for (char c : s) {
-    if (c == '<') out += "&lt;";
-    else if (c == '>') out += "&gt;";
-    else if (c == '&') out += "&amp;";
-    else if (c == '"') out += "&quot;";
-    else out += c;
-  }
-  return out;
-}
+using html::number;
 
 // The extra arguments a step may not carry: the batch sets them.
 const std::set<std::string> kBatchFlags = {"--out", "--holdout", "--session", "--poses", "--calibration", "--report"};
@@ -748,43 +733,43 @@ Status write_summary(const fs::path& results, const Manifest& m, const std::vect
   std::map<std::string, int> counts;
   for (const auto& r : rows) ++counts[r.state];
   std::ostringstream h;
-  h << "<!doctype html>\n<html><head><meta charset=\"utf-8\"><title>s2r batch: " << html_escape(m.root.string())
+  h << "<!doctype html>\n<html><head><meta charset=\"utf-8\"><title>s2r batch: " << html::escape(m.root.string())
     << "</title>\n<style>body{font-family:sans-serif;margin:1.5em}table{border-collapse:collapse}"
        "td,th{border:1px solid #ccc;padding:3px 7px;vertical-align:top}th{background:#eee}"
        ".failed{background:#fdd}.running,.pending{background:#ffd}.done{background:#efe}"
        "pre{margin:0;font-size:85%;white-space:pre-wrap;max-width:60em}</style></head><body>\n";
-  h << "<h1>s2r batch</h1>\n<p>root <code>" << html_escape(m.root.string()) << "</code>; steps "
-    << html_escape(join(m.steps, ", ")) << "; " << rows.size() << " captures:";
+  h << "<h1>s2r batch</h1>\n<p>root <code>" << html::escape(m.root.string()) << "</code>; steps "
+    << html::escape(join(m.steps, ", ")) << "; " << rows.size() << " captures:";
   for (const auto& [s, n] : counts) h << " " << n << " " << s;
   h << "; written " << utc_now() << ".</p>\n<table>\n<tr><th>capture</th><th>kind</th><th>state</th><th>seconds</th>"
        "<th>peak MB</th>";
-  for (const auto& meth : methods) h << "<th>held-out PSNR dB<br>" << html_escape(meth) << "</th>";
+  for (const auto& meth : methods) h << "<th>held-out PSNR dB<br>" << html::escape(meth) << "</th>";
   h << "<th>warnings, skipped steps</th><th>links</th></tr>\n";
   for (const auto& r : rows) {
-    h << "<tr class=\"" << html_escape(r.state) << "\"><td>" << html_escape(r.name) << "</td><td>" << html_escape(r.kind)
-      << "</td><td>" << html_escape(r.state);
-    if (r.state == "failed") h << " at " << html_escape(r.failed_step) << "<pre>" << html_escape(r.message) << "</pre>";
+    h << "<tr class=\"" << html::escape(r.state) << "\"><td>" << html::escape(r.name) << "</td><td>" << html::escape(r.kind)
+      << "</td><td>" << html::escape(r.state);
+    if (r.state == "failed") h << " at " << html::escape(r.failed_step) << "<pre>" << html::escape(r.message) << "</pre>";
     h << "</td><td>" << number(r.seconds) << "</td><td>" << number(r.peak_mb) << "</td>";
     for (const auto& meth : methods) {
       auto it = r.psnr.find(meth);
       h << "<td>" << (it == r.psnr.end() ? "" : number(it->second)) << "</td>";
     }
     h << "<td>";
-    for (const auto& w : r.warnings) h << html_escape(w) << "<br>";
-    for (const auto& s : r.skipped_steps) h << "<i>" << html_escape(s) << "</i><br>";
+    for (const auto& w : r.warnings) h << html::escape(w) << "<br>";
+    for (const auto& s : r.skipped_steps) h << "<i>" << html::escape(s) << "</i><br>";
     h << "</td><td>";
     const fs::path dir = results / r.name;
     for (const char* sub : {"model", "eval", "logs", "export"}) {
       std::error_code ec;
-      if (fs::exists(dir / sub, ec)) h << "<a href=\"" << html_escape(r.name + "/" + sub) << "/\">" << sub << "</a> ";
+      if (fs::exists(dir / sub, ec)) h << "<a href=\"" << html::escape(r.name + "/" + sub) << "/\">" << sub << "</a> ";
     }
-    if (!r.log.empty()) h << "<a href=\"" << html_escape(r.log) << "\">failed step's log</a>";
+    if (!r.log.empty()) h << "<a href=\"" << html::escape(r.log) << "\">failed step's log</a>";
     std::error_code ec;
     if (fs::exists(dir / "eval"))
       for (const auto& e : fs::directory_iterator(dir / "eval", ec))
         if (e.path().extension() == ".png") {
-          h << "<br><a href=\"" << html_escape(r.name + "/eval/" + e.path().filename().string()) << "\">"
-            << html_escape(e.path().filename().string()) << "</a>";
+          h << "<br><a href=\"" << html::escape(r.name + "/eval/" + e.path().filename().string()) << "\">"
+            << html::escape(e.path().filename().string()) << "</a>";
           break;
         }
     h << "</td></tr>\n";

@@ -13,6 +13,7 @@
 #include <nlohmann/json.hpp>
 
 #include "app/run.h"
+#include "app/html.h"
 #include "core/atomic_file.h"
 #include "core/json_fields.h"
 #include "core/sweep.h"
@@ -28,22 +29,7 @@ struct StageRow {
   std::vector<std::string> warnings;
 };
 
-std::string html_escape(const std::string& s) {
-  std::string out;
-  for (char c : s) {
-    if (c == '<') out += "&lt;";
-    else if (c == '>') out += "&gt;";
-    else if (c == '&') out += "&amp;";
-    else out += c;
-  }
-  return out;
-}
-
-std::string number(double v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%.4g", v);
-  return buf;
-}
+using html::number;
 
 // The headline errors: per-frame copies left out, at most 8.
 std::vector<std::pair<std::string, double>> headline(const nlohmann::json& errors) {
@@ -140,11 +126,11 @@ int run_summary(const fs::path& folder, const std::string& title) {
   std::ostringstream md, html;
   md << "# " << title << "\n\nEvery stage's report (`report.json`): its seconds, its errors, what it left out.\n\n"
      << "| folder | stage | seconds | errors | skipped |\n|---|---|---|---|---|\n";
-  html << "<!doctype html><html><head><meta charset='utf-8'><title>" << html_escape(title)
+  html << "<!doctype html><html><head><meta charset='utf-8'><title>" << html::escape(title)
        << "</title><style>body{font-family:sans-serif;margin:2em;max-width:1400px}table{border-collapse:collapse}"
           "td,th{border:1px solid #ccc;padding:4px 8px;vertical-align:top;font-size:13px}img{max-width:100%;"
           "border:1px solid #ddd}figure{margin:1em 0}</style></head><body><h1>"
-       << html_escape(title) << "</h1><p>Every stage's report (report.json): its seconds, its errors, what it left out. "
+       << html::escape(title) << "</h1><p>Every stage's report (report.json): its seconds, its errors, what it left out. "
        << "Stages together: " << number(total) << " s.</p><table><tr><th>folder</th><th>stage</th><th>seconds</th>"
        << "<th>errors</th><th>skipped</th><th>warnings</th></tr>";
   for (const auto& r : rows) {
@@ -152,10 +138,10 @@ int run_summary(const fs::path& folder, const std::string& title) {
     for (const auto& [k, v] : r.errors) errs += k + " " + number(v) + "; ";
     for (const auto& [k, v] : r.skipped) skips += k + " " + number(v) + "; ";
     md << "| " << r.folder << " | " << r.stage << " | " << number(r.seconds) << " | " << errs << " | " << skips << " |\n";
-    html << "<tr><td><a href='" << r.folder << "/report.json'>" << html_escape(r.folder) << "</a></td><td>"
-         << html_escape(r.stage) << "</td><td>" << number(r.seconds) << "</td><td>" << html_escape(errs) << "</td><td>"
-         << html_escape(skips) << "</td><td>";
-    for (const auto& w : r.warnings) html << html_escape(w) << "<br>";
+    html << "<tr><td><a href='" << html::escape(r.folder) << "/report.json'>" << html::escape(r.folder) << "</a></td><td>"
+         << html::escape(r.stage) << "</td><td>" << number(r.seconds) << "</td><td>" << html::escape(errs) << "</td><td>"
+         << html::escape(skips) << "</td><td>";
+    for (const auto& w : r.warnings) html << html::escape(w) << "<br>";
     html << "</td></tr>";
   }
   md << "\nStages together: " << number(total) << " s.\n\n## Images\n\n";
@@ -163,8 +149,8 @@ int run_summary(const fs::path& folder, const std::string& title) {
   for (const auto& p : pngs) {
     const std::string rel = fs::relative(p, folder, ec).string();
     md << "### " << rel << "\n\n![" << rel << "](" << rel << ")\n\n";
-    html << "<figure><figcaption>" << html_escape(rel) << "</figcaption><a href='" << rel << "'><img src='" << rel
-         << "'></a></figure>";
+    html << "<figure><figcaption>" << html::escape(rel) << "</figcaption><a href='" << html::escape(rel) << "'><img src='"
+         << html::escape(rel) << "'></a></figure>";
   }
   html << "</body></html>\n";
   if (auto st = write_file_atomic(folder / "index.md", md.str()); !st) return error(st.error().message);

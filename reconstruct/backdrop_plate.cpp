@@ -1,5 +1,8 @@
 #include "reconstruct/backdrop_plate.h"
 
+#include <opencv2/core.hpp>
+#include <opencv2/photo.hpp>
+
 #include <algorithm>
 #include <cmath>
 
@@ -108,6 +111,20 @@ BackdropPlateResult make_backdrop_plate(const std::vector<const ImageU8*>& photo
     res.skipped = "uniform";
     return res;
   }
+  // The holes: filled from the kept plate around them, not left one colour
+  // (a held-out view that sees past the object's edge where the training
+  // photos never did shows the wall there, not a band of background).
+  cv::Mat holes(H, W, CV_8U, cv::Scalar(0));
+  size_t filled = 0;
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x)
+      if (spread[size_t(y) * W + size_t(x)] < 0) holes.at<uint8_t>(y, x) = 255, ++filled;
+  if (filled) {
+    cv::Mat in(H, W, CV_8UC3, plate.data.data()), out;
+    cv::inpaint(in, holes, out, o.fill_radius_px, cv::INPAINT_TELEA);
+    out.copyTo(in);  // in is a header of plate's pixels
+  }
+  res.filled_share = double(filled) / double(spread.size());
   res.plate = std::move(plate);
   return res;
 }

@@ -864,6 +864,7 @@ Result<ReconstructSummary> run_reconstruct_job(const ReconstructJob& job) {
     }
     BackdropPlateResult pr = make_backdrop_plate(photos, empty, fit_background(in->s, *views));
     rep.counts["backdrop_plate_kept_share"] = pr.kept_share;
+    if (pr.plate) rep.counts["backdrop_plate_filled_share"] = pr.filled_share;
     rep.errors["backdrop_plate_spread"] = pr.spread;
     if (!job.textures) distance.assign(views->size(), ImageF{});
     if (pr.plate) {
