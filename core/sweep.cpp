@@ -35,6 +35,24 @@ Status SweepTable::write_csv(const fs::path& path) const {
   return write_file_atomic(path, s.str());
 }
 
+namespace {
+
+// A gnuplot single-quoted string: a quote inside is written twice.
+std::string gp_quote(const std::string& text) {
+  std::string out = "'";
+  for (char c : text) out += c == '\'' ? std::string("''") : std::string(1, c);
+  return out + "'";
+}
+
+// A POSIX shell single-quoted word: a quote inside ends the word, is escaped, and reopens it.
+std::string sh_quote(const std::string& text) {
+  std::string out = "'";
+  for (char c : text) out += c == '\'' ? std::string("'\\''") : std::string(1, c);
+  return out + "'";
+}
+
+}  // namespace
+
 Status plot_png(const SweepTable& t, const PlotSpec& spec, const fs::path& png) {
   auto col = [&](const std::string& name) -> int {
     for (size_t i = 0; i < t.columns.size(); ++i)
@@ -46,8 +64,8 @@ Status plot_png(const SweepTable& t, const PlotSpec& spec, const fs::path& png) 
   // Inline data blocks: one block per line of the plot.
   std::ostringstream script;
   script << "set terminal pngcairo size 900,560 font 'sans,10' noenhanced\n";
-  script << "set title '" << spec.title << "'\nset xlabel '" << spec.xlabel << "'\nset ylabel '" << spec.ylabel
-         << "'\nset grid\nset key left top\n";
+  script << "set title " << gp_quote(spec.title) << "\nset xlabel " << gp_quote(spec.xlabel) << "\nset ylabel "
+         << gp_quote(spec.ylabel) << "\nset grid\nset key left top\n";
   if (spec.logx) script << "set logscale x\n";
   if (spec.logy) script << "set logscale y\n";
   std::vector<std::pair<std::string, std::vector<std::pair<double, double>>>> lines;
@@ -79,15 +97,15 @@ Status plot_png(const SweepTable& t, const PlotSpec& spec, const fs::path& png) 
   }
   script << "plot ";
   for (size_t i = 0; i < lines.size(); ++i)
-    script << (i ? ", " : "") << "$d" << i << " using 1:2 with linespoints lw 2 title '" << lines[i].first << "'";
+    script << (i ? ", " : "") << "$d" << i << " using 1:2 with linespoints lw 2 title " << gp_quote(lines[i].first);
   script << "\n";
   return write_via_temp(png, [&](const fs::path& tmp) -> Status {
     const fs::path gp = tmp.string() + ".gp";
     {
       std::ofstream f(gp);
-      f << "set output '" << tmp.string() << "'\n" << script.str();
+      f << "set output " << gp_quote(tmp.string()) << "\n" << script.str();
     }
-    const std::string cmd = "gnuplot '" + gp.string() + "' 2>&1";
+    const std::string cmd = "gnuplot " + sh_quote(gp.string()) + " 2>&1";
     FILE* p = ::popen(cmd.c_str(), "r");
     std::string out;
     if (p) {
