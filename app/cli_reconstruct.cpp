@@ -116,6 +116,9 @@ void add_reconstruct(CLI::App& app, Chosen& chosen) {
   sub->add_option("--fit-sh", job.fit_sh_degree, "spherical-harmonic degree of the fitted colour (0: the same from every side)")
       ->check(CLI::Range(0, 2))
       ->capture_default_str();
+  sub->add_flag("--fit-random-background", job.fit_random_background,
+               "views with a matte (an RGBA data set): each fit step moves the photo onto a random colour under its "
+               "matte and composites the facets on the same, so opacity is fitted to the matte");
   sub->add_option("--fit-snapshots", job.fit_snapshots,
                   "S,T,...: also write the fit as it was at these seconds (splats_<S>s.bin; s2r eval --splats)")
       ->delimiter(',');

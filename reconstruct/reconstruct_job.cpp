@@ -676,19 +676,20 @@ Status fit_step(const ReconstructJob& job, const Session& s, const std::vector<V
   for (size_t i = 0; i < views.size(); ++i) {
     const ImageU8& c = views[i].color;
     if (c.channels == 3) {
-      sv.push_back({views[i].K, views[i].world_from_camera, &c, plate});
+      sv.push_back({views[i].K, views[i].world_from_camera, &c, plate, views[i].matte.empty() ? nullptr : &views[i].matte});
       continue;
     }
     rgb[i] = ImageU8(c.width, c.height, 3);
     for (size_t p = 0; p < c.pixels(); ++p)
       for (size_t k = 0; k < 3; ++k) rgb[i].data[p * 3 + k] = c.data[p * size_t(c.channels) + std::min<size_t>(k, size_t(c.channels) - 1)];
-    sv.push_back({views[i].K, views[i].world_from_camera, &rgb[i], plate});
+    sv.push_back({views[i].K, views[i].world_from_camera, &rgb[i], plate, views[i].matte.empty() ? nullptr : &views[i].matte});
   }
   SplatFitOptions o;
   o.seconds = job.fit_seconds;
   o.sh_degree = job.fit_sh_degree;
   o.threads = job.threads;
   o.background = fit_background(s, views);
+  o.random_background = job.fit_random_background;
   o.seconds_marks = job.fit_snapshots;
   Progress bar("fit", 1000);
   size_t shown = 0;

@@ -350,12 +350,15 @@ double forward_backward(const SplatFrame& f, const ImageU8& target, const Behind
   return std::accumulate(err.begin(), err.end(), 0.0);
 }
 
+// Box-filtered by s; a single-channel image stays one channel, any other
+// becomes RGB (its first three).
 ImageU8 downscale(const ImageU8& im, int s) {
-  if (s == 1 && im.channels == 3) return im;
-  ImageU8 out(im.width / s, im.height / s, 3);
+  const int ch = im.channels == 1 ? 1 : 3;
+  if (s == 1 && im.channels == ch) return im;
+  ImageU8 out(im.width / s, im.height / s, ch);
   for (int y = 0; y < out.height; ++y)
     for (int x = 0; x < out.width; ++x)
-      for (int c = 0; c < 3; ++c) {
+      for (int c = 0; c < ch; ++c) {
         int sum = 0;
         for (int dy = 0; dy < s; ++dy)
           for (int dx = 0; dx < s; ++dx) sum += im.at(x * s + dx, y * s + dy, std::min(c, im.channels - 1));
@@ -441,6 +444,9 @@ std::string DivergenceGuard::observe(int epoch, int scale, double psnr) {
   auto it = std::find_if(best_.begin(), best_.end(), [&](const auto& b) { return b.first == scale; });
   if (it == best_.end()) it = best_.insert(best_.end(), {scale, psnr});
   it->second = std::max(it->second, psnr);
+  // Under half an 8-bit level of error is as good as the photos can say
+  // (a photo that is already drawn exactly starts at the 120-dB cap).
+  if (psnr >= kQuantizationPsnrDb) return {};
   if (!(psnr >= it->second - 3) || (stage_ == 0 && scale == initial_scale_ && !(psnr >= initial_ - 0.5)))
     return fmt::format("fit: diverged: training PSNR {:.1f} dB at epoch {} (at the start {:.1f} dB, the best at this "
                        "scale in this stage {:.1f} dB)",
@@ -540,6 +546,9 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
   for (const auto& v : views)
     if (v.backdrop && (v.backdrop->width != v.photo->width || v.backdrop->height != v.photo->height || v.backdrop->channels < 3))
       return fail(ErrorCode::invalid, "fit: a backdrop plate's size differs from its photo's (or it is not RGB)");
+  for (const auto& v : views)
+    if (v.matte && (v.matte->width != v.photo->width || v.matte->height != v.photo->height || v.matte->channels != 1))
+      return fail(ErrorCode::invalid, "fit: a matte's size differs from its photo's (or it is not one channel)");
   using clock = std::chrono::steady_clock;
   const auto t0 = clock::now();
   auto elapsed = [&] { return std::chrono::duration<double>(clock::now() - t0).count(); };
@@ -567,6 +576,34 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
     auto it = plates.find({b, s});
     if (it == plates.end()) it = plates.emplace(std::pair{b, s}, downscale(*b, s)).first;
     return Behind{o.background.data(), &it->second};
+  };
+  // Random backgrounds: the mattes at each scale, and a step's photo moved
+  // onto colour r under its matte (into `moved`).
+  std::map<int, std::vector<ImageU8>> matte_pyramid;
+  auto matte_level = [&](int s) -> const std::vector<ImageU8>& {
+    auto it = matte_pyramid.find(s);
+    if (it != matte_pyramid.end()) return it->second;
+    std::vector<ImageU8> l(views.size());
+    parallel_for(int(views.size()), o.threads, [&](int i) {
+      if (views[size_t(i)].matte) l[size_t(i)] = downscale(*views[size_t(i)].matte, s);
+    });
+    return matte_pyramid.emplace(s, std::move(l)).first->second;
+  };
+  std::uniform_real_distribution<float> unit(0.f, 1.f);
+  auto step_target = [&](size_t i, int s, const ImageU8& photo, std::mt19937& gen, std::array<float, 3>& colour,
+                         ImageU8& moved) -> std::pair<const ImageU8*, Behind> {
+    if (!o.random_background || !views[i].matte || views[i].backdrop) return {&photo, behind(i, s)};
+    for (float& c : colour) c = unit(gen);
+    const ImageU8& m = matte_level(s)[i];
+    moved = ImageU8(photo.width, photo.height, 3);
+    float shift[3];
+    for (int c = 0; c < 3; ++c) shift[c] = (colour[size_t(c)] - o.background[size_t(c)]) * 255.f;
+    for (size_t p = 0; p < photo.pixels(); ++p) {
+      const float open = 1.f - float(m.data[p]) * (1.f / 255.f);
+      for (size_t c = 0; c < 3; ++c)
+        moved.data[p * 3 + c] = uint8_t(std::clamp(std::lround(float(photo.data[p * size_t(photo.channels) + c]) + shift[c] * open), 0L, 255L));
+    }
+    return {&moved, Behind{colour.data()}};
   };
   // Stages, coarse to fine: the grid starts 2^coarse_levels times coarser
   // than the facets given (their cells merged), each stage ends by halving
@@ -624,10 +661,14 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
     const auto& photos = level(s0);
     double sq = 0, px = 0;
     const size_t step_views = std::max<size_t>(1, views.size() / 8);  // eight views, evenly spaced
+    std::mt19937 gen(11);
     for (size_t i = 0; i < views.size(); i += step_views) {
       const Intrinsics K = scaled(views[i].intrinsics, s0);
-      sq += forward_backward(project(splats, coeffs, K, views[i].world_from_camera, o.threads), photos[i],
-                             behind(i, s0), 1.f, o.threads, nullptr);
+      std::array<float, 3> colour;
+      ImageU8 moved;
+      const auto [target, bg] = step_target(i, s0, photos[i], gen, colour, moved);
+      sq += forward_backward(project(splats, coeffs, K, views[i].world_from_camera, o.threads), *target, bg, 1.f,
+                             o.threads, nullptr);
       px += 3.0 * K.width * K.height;
     }
     initial_psnr = 10 * std::log10(1.0 / std::max(sq / px, 1e-12));
@@ -685,12 +726,14 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
         const float lr_scale = float(std::pow(o.lr_final, frac));
         const SplatView& view = views[size_t(vi)];
         const Intrinsics K = scaled(view.intrinsics, scale);
-        const ImageU8& target = photos[size_t(vi)];
+        std::array<float, 3> colour;
+        ImageU8 moved;
+        const auto [target, bg] = step_target(size_t(vi), scale, photos[size_t(vi)], rng, colour, moved);
         const double t_a = elapsed();
         const SplatFrame f = project(splats, coeffs, K, view.world_from_camera, o.threads);
         const double t_b = elapsed();
         const float inv = 1.f / float(3.0 * K.width * K.height);
-        sq += forward_backward(f, target, behind(size_t(vi), scale), inv, o.threads, &grads);
+        sq += forward_backward(f, *target, bg, inv, o.threads, &grads);
         const double t_c = elapsed();
         sum.seconds_project += t_b - t_a;
         sum.seconds_raster += t_c - t_b;

@@ -82,6 +82,9 @@ void radix_sort(std::vector<std::pair<uint32_t, uint32_t>>& pairs);
 // the steps' states, so 3 dB). A new stage starts its own record: a stage
 // begins with its facets just split, a few dB under where the last one
 // ended, and that is not divergence.
+// An epoch over the 8-bit quantisation's PSNR (rms error of a uniform half
+// level, 10 log10(12 * 255^2) = 58.9 dB) is never divergence.
+inline constexpr double kQuantizationPsnrDb = 58.9;
 class DivergenceGuard {
  public:
   DivergenceGuard(double initial_psnr_db, int initial_scale) : initial_(initial_psnr_db), initial_scale_(initial_scale) {}
@@ -102,6 +105,11 @@ struct SplatView {
   // What lies behind the object in this photo, per pixel (RGB, the photo's
   // size: the backdrop plate), instead of the one background colour.
   const ImageU8* backdrop = nullptr;
+  // The object's fractional matte (1 channel, the photo's size) under which
+  // the photo was composited on the background; with
+  // SplatFitOptions::random_background the fit moves the photo onto other
+  // colours with it.
+  const ImageU8* matte = nullptr;
 };
 
 // The image formation above, on the CPU: RGB floats in [0, 1], W x H x 3;
@@ -123,6 +131,15 @@ struct SplatFitOptions {
   double prune_opacity = 0.02;  // at refinement and at the end
   size_t max_facets = 600000;   // refinement splits the most used facets up to this many (half that before the last stage)
   std::array<float, 3> background{0, 0, 0};
+  // Each step of a view with a matte (and no backdrop plate) moves its photo
+  // onto a random colour under the matte, photo + (r - b)(1 - matte), and
+  // composites the facets on the same r, as Mueller, Evans, Schied and
+  // Keller train on RGBA data ("Instant Neural Graphics Primitives with a
+  // Multiresolution Hash Encoding", 2022): opacity is then fitted to the
+  // matte everywhere, not only where the object differs from b. The
+  // training PSNR (and the divergence test's first figure) are measured on
+  // such colours too.
+  bool random_background = false;
   int threads = 0;
   std::vector<double> seconds_marks;  // snapshots of the facets at these seconds (error against run time)
   std::function<void(double fraction)> on_progress;
