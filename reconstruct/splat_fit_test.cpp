@@ -243,8 +243,10 @@ TEST(SplatFit, RandomBackgroundsFitOpacityToTheMatte) {
   };
   const double fixed = matte_error(false), random = matte_error(true);
   std::printf("held-out alpha error: %.4f on white, %.4f on random colours\n", fixed, random);
-  EXPECT_LT(random, 0.5 * fixed);
-  EXPECT_LT(random, 0.05);
+  // Measured 0.095 against 0.024 in 10 epochs; 0.098 against 0.055 in the
+  // sanitizers' 3.
+  EXPECT_LT(random, (kSanitized ? 0.75 : 0.5) * fixed);
+  EXPECT_LT(random, kSanitized ? 0.08 : 0.05);
 }
 
 TEST(SplatFit, DivergenceIsAnErrorAndLeavesTheFacets) {
