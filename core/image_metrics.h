@@ -15,6 +15,11 @@ namespace s2r {
 // Mask: single channel, non-zero = use the pixel. Pass nullptr for all pixels.
 // Identical images give +infinity PSNR.
 Result<double> psnr(const ImageU8& a, const ImageU8& b, const ImageU8* mask = nullptr);
+// Where PSNRs are averaged over frames and written to reports, identical
+// images count as 120 dB (a mean squared error of 1e-12 on a 0..1 scale, the
+// fit's own cap), so a mean and its JSON stay numbers.
+inline constexpr double kPsnrIdenticalDb = 120.0;
+inline double finite_psnr(double db) { return db < kPsnrIdenticalDb ? db : kPsnrIdenticalDb; }
 Result<double> ssim(const ImageU8& a, const ImageU8& b, const ImageU8* mask = nullptr);
 
 // A silhouette's band: the pixels whose matte is fractional (1..254) or

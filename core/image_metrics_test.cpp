@@ -12,6 +12,8 @@ TEST(Psnr, HandComputedValues) {
   EXPECT_NEAR(*psnr(a, b), 10 * std::log10(255.0 * 255.0 / 1.0), 1e-9);  // MSE 1 -> 48.1308 dB
   EXPECT_NEAR(*psnr(a, b), 48.1308036, 1e-6);
   EXPECT_TRUE(std::isinf(*psnr(a, a)));
+  EXPECT_EQ(finite_psnr(*psnr(a, a)), kPsnrIdenticalDb);
+  EXPECT_EQ(finite_psnr(48.0), 48.0);
   // Mask: outside differs by 50 (ignored), inside by 2 -> MSE 4.
   ImageU8 c = a, mask(8, 8, 1, 0);
   for (int y = 0; y < 8; ++y)

@@ -383,6 +383,7 @@ Status eval_frame(const EvalJob& job, const Renderer& m, const ViewCamera& view,
     auto fq = ssim(rgb, e.photo);
     for (const auto* r : {&p, &q, &fp, &fq})
       if (!*r) return fail(fmt::format("frame {}: {}", frame, r->error().message));
+    *p = finite_psnr(*p), *fp = finite_psnr(*fp);
     size_t covered = 0;
     for (size_t i = 0; i < e.object.pixels(); ++i) covered += e.object.data[i] && drawn[k].data[i * 4 + 3];
     const double cov = object_px ? double(covered) / double(object_px) : 0.0;
@@ -406,8 +407,8 @@ Status eval_frame(const EvalJob& job, const Renderer& m, const ViewCamera& view,
       if (me->edge_pixels) {
         auto ep = psnr(rgb, e.photo, &*e.band);
         if (!ep) return fail(fmt::format("frame {}: {}", frame, ep.error().message));
-        edge = *ep;
-        series.edge_psnr[n].push_back(*ep);
+        edge = finite_psnr(*ep);
+        series.edge_psnr[n].push_back(edge);
         series.matte_edge_mae[n].push_back(me->edge_mae);
         rep.errors[fmt::format("matte_edge_mae_{}_frame_{:04d}", n, frame)] = me->edge_mae;
       }

@@ -133,6 +133,7 @@ uniform int u_clip;
 uniform float u_clip_scale;
 uniform int u_by_camera;
 uniform int u_probe;
+uniform int u_probe_exact;
 uniform int u_refine;
 uniform int u_clip_fuzzy;
 uniform vec3 u_eye;
@@ -185,7 +186,17 @@ void main() {
   bool clip = u_clip != 0 && (u_clip_fuzzy != 0 || v_rel > 0.0);
   // The input camera nearest the view carves too: where it sees through
   // the fragment, the fragment is empty space.
-  if (clip && u_probe >= 0 && texel_state(u_probe, v_world, camera_tol(u_probe, tol), col) == 2) discard;
+  if (clip && u_probe >= 0) {
+    int probe = texel_state(u_probe, v_world, camera_tol(u_probe, tol), col);
+    if (probe == 2) discard;
+    // The view is the probe camera's own (the same centre): every point on
+    // a pixel's ray shows that camera's texel, whichever facet draws it and
+    // whatever the facet's own cameras say (the photo is exact).
+    if (u_probe_exact != 0 && probe != 0) {
+      frag = vec4(u_by_camera != 0 ? palette(u_probe) : col, 1.0);
+      return;
+    }
+  }
   for (int j = 0; j < 4; ++j) {
     int ci = v_cams[j];
     if (ci < 0) break;
@@ -898,7 +909,12 @@ void ModelRenderer::draw_billboards(const Pass& pass, DrawStats& st) {
   glUniform1f(p.uniform("u_scale"), float(std::max(o.billboard_scale, std::sqrt(3.0))));
   glUniform1i(p.uniform("u_clip"), o.depth_clip ? 1 : 0);
   glUniform1f(p.uniform("u_clip_scale"), float(o.clip_scale));
-  glUniform1i(p.uniform("u_probe"), nearest_camera(model_, view));
+  const int probe = nearest_camera(model_, view);
+  glUniform1i(p.uniform("u_probe"), probe);
+  // The view from an input camera's own centre (a training view redrawn).
+  const double radius = model_.bounds.isEmpty() ? 1.0 : 0.5 * model_.bounds.diagonal().norm();
+  const bool exact = probe >= 0 && (model_.cameras[size_t(probe)].world_from_camera.translation() - view.eye()).norm() <= 1e-6 * radius;
+  glUniform1i(p.uniform("u_probe_exact"), exact ? 1 : 0);
   glUniform1i(p.uniform("u_refine"), std::max(0, o.refine_steps));
   // In a silhouette-only model the hull is the geometry, and clipping against it is meaningful.
   glUniform1i(p.uniform("u_clip_fuzzy"), o.clip_fuzzy || !has_reliable_ ? 1 : 0);
