@@ -113,6 +113,11 @@ void add_reconstruct(CLI::App& app, Chosen& chosen) {
                   "error against seconds); 0: no fit")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
+  sub->add_option("--fit-epochs", job.fit_epochs,
+                  "also stop the fit after this many passes over the photos, its stages sharing them as they share "
+                  "the seconds: the same model on a slower or busier machine (give --fit ample seconds); 0: seconds only")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
   sub->add_option("--fit-sh", job.fit_sh_degree, "spherical-harmonic degree of the fitted colour (0: the same from every side)")
       ->check(CLI::Range(0, 2))
       ->capture_default_str();

@@ -687,6 +687,7 @@ Status fit_step(const ReconstructJob& job, const Session& s, const std::vector<V
   SplatFitOptions o;
   o.seconds = job.fit_seconds;
   o.sh_degree = job.fit_sh_degree;
+  o.max_epochs = job.fit_epochs;
   o.threads = job.threads;
   o.background = fit_background(s, views);
   o.random_background = job.fit_random_background;
@@ -755,6 +756,7 @@ Status ReconstructJob::validate() const {
   if (threads < 0) return fail(ErrorCode::invalid, "threads: must be >= 0 (0 = all cores)");
   if (!(fit_seconds >= 0) || !std::isfinite(fit_seconds)) return fail(ErrorCode::invalid, "fit_seconds: must be >= 0 seconds");
   if (fit_sh_degree < 0 || fit_sh_degree > 2) return fail(ErrorCode::invalid, "fit_sh_degree: must be 0, 1 or 2");
+  if (fit_epochs < 0) return fail(ErrorCode::invalid, "fit_epochs: must be >= 0 (0: the seconds alone)");
   return {};
 }
 

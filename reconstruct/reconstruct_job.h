@@ -58,6 +58,7 @@ struct ReconstructJob {
   // reconstruct/splat_fit.h), starting from the hull's voxels and the
   // fused surface's band; 0: no fit.
   double fit_seconds = 0;
+  int fit_epochs = 0;                 // > 0: the fit also stops after this many passes over the photos
   int fit_sh_degree = 1;              // view-dependent colour: 0 (none) .. 2
   bool fit_random_background = false;  // views with a matte: fit on random colours under it (SplatFitOptions)
   std::vector<double> fit_snapshots;  // seconds: also write splats_<s>s.bin at these (error against run time)

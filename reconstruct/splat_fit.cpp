@@ -382,25 +382,40 @@ void scatter(const float* in, int coeffs, Splat& s) {
   for (int k = 0; k < 3 * coeffs; ++k) s.sh[size_t(k)] = in[5 + k];
 }
 
-// Halves the grid: each splat kept becomes its eight children.
-std::vector<Splat> split(const std::vector<Splat>& in) {
+}  // namespace
+
+// Each child sits in its own half-size sub-cell, as near as that allows to
+// the parent's centre moved by d = (sqrt 3 / 2) sigma along each axis
+// towards the sub-cell, and has footprint sigma / 2: along any direction the
+// eight together then spread as the parent did (sigma^2 / 4 + d^2 =
+// sigma^2). Each child's opacity is 1 - sqrt(1 - o): two of them behind each
+// other give the parent's o. Measured on a fitted sphere: the children draw
+// the parents' image at 40 dB (at the sub-cell centres with the parent's
+// offset and sigma / 2: 34 dB); on lego, at equal epochs, the fit ends the
+// same either way (28.64 against 28.65 dB on 20 val views).
+std::vector<Splat> split_splats(const std::vector<Splat>& in) {
   std::vector<Splat> out;
   out.reserve(in.size() * 8);
   for (const Splat& s : in) {
-    const float q = 0.25f * s.voxel;
+    const float wc = 0.5f * s.voxel, q = 0.5f * wc;
+    const Eigen::Vector3f c = s.centre();
+    const float sigma = s.sigma(), d = 0.5f * std::sqrt(3.f) * sigma;
     const float o = 1.f - std::sqrt(1.f - std::min(s.opacity(), 0.99f));
     for (int k = 0; k < 8; ++k) {
-      Splat c = s;
-      c.voxel = 0.5f * s.voxel;
-      c.anchor = s.anchor + Eigen::Vector3f((k & 1) ? q : -q, (k & 2) ? q : -q, (k & 4) ? q : -q);
-      c.offset = s.offset.cwiseMax(-0.5f * c.voxel).cwiseMin(0.5f * c.voxel);
-      c.log_sigma = s.log_sigma - std::log(2.f);
-      c.opacity_logit = logit(std::clamp(o, 1e-4f, 0.99f));
-      out.push_back(c);
+      const Eigen::Vector3f sk((k & 1) ? 1.f : -1.f, (k & 2) ? 1.f : -1.f, (k & 4) ? 1.f : -1.f);
+      Splat ch = s;
+      ch.voxel = wc;
+      ch.anchor = s.anchor + q * sk;
+      ch.offset = (c + d * sk - ch.anchor).cwiseMax(-0.5f * wc).cwiseMin(0.5f * wc);
+      ch.log_sigma = std::clamp(std::log(0.5f * sigma), std::log(0.05f * wc), std::log(4.f * wc));
+      ch.opacity_logit = logit(std::clamp(o, 1e-4f, 0.99f));
+      out.push_back(ch);
     }
   }
   return out;
 }
+
+namespace {
 
 // Facets of one grid merged into cells 2^levels voxels wide: a cell holds a
 // facet where any of its voxels did, its colour their mean. The cells'
@@ -696,7 +711,7 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
       std::vector<Splat> parents, whole;
       for (size_t k = 0; k < keep.size(); ++k) (k < splits ? parents : whole).push_back(splats[keep[k].second]);
       sum.split = splits;
-      splats = split(parents);
+      splats = split_splats(parents);
       splats.insert(splats.end(), whole.begin(), whole.end());
     }
     m.assign(splats.size() * size_t(np), 0.f);
@@ -786,7 +801,8 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
         sum.seconds_update += elapsed() - t_c;
         if (!std::isfinite(sq)) return fail(ErrorCode::invalid, fmt::format("fit: diverged (error not finite) at step {}", step));
         take_snapshots();
-        if (o.on_progress) o.on_progress(std::min(1.0, elapsed() / budget));
+        if (o.on_progress)
+          o.on_progress(std::min(1.0, std::max(elapsed() / budget, o.max_epochs > 0 ? (epoch + double(done) / double(views.size())) / o.max_epochs : 0.0)));
       }
       if (done == 0) break;
       ++epoch;

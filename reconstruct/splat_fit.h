@@ -169,6 +169,11 @@ struct SplatFitSummary {
   std::vector<std::pair<double, std::vector<Splat>>> snapshots;  // at seconds_marks
 };
 
+// Halves the grid under `splats`: each becomes its eight children, one in
+// each half-size sub-cell, placed and sized so that together they draw what
+// the parent drew (see the definition for the rule).
+std::vector<Splat> split_splats(const std::vector<Splat>& splats);
+
 // Fits `splats` (anchors, voxel sizes and initial colours set by the caller;
 // see init_splats) to `views`. On error (divergence, bad options) `splats` is
 // left as it was.
