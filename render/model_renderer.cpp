@@ -186,12 +186,13 @@ void main() {
   bool clip = u_clip != 0 && (u_clip_fuzzy != 0 || v_rel > 0.0);
   // The input camera nearest the view carves too: where it sees through
   // the fragment, the fragment is empty space.
-  if (clip && u_probe >= 0) {
+  if (u_probe >= 0 && (clip || u_probe_exact != 0)) {
     int probe = texel_state(u_probe, v_world, camera_tol(u_probe, tol), col);
-    if (probe == 2) discard;
+    if (clip && probe == 2) discard;
     // The view is the probe camera's own (the same centre): every point on
     // a pixel's ray shows that camera's texel, whichever facet draws it and
-    // whatever the facet's own cameras say (the photo is exact).
+    // whatever the facet's own cameras say (the photo is exact); facets
+    // drawn without the clip (fuzzy evidence) too.
     if (u_probe_exact != 0 && probe != 0) {
       frag = vec4(u_by_camera != 0 ? palette(u_probe) : col, 1.0);
       return;

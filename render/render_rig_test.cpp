@@ -77,7 +77,7 @@ TEST(RenderRig, BunnyInputViewsReproduceThePhotosClippingAndTheHybridPayAtHeldOu
   const Built b = build("bunny", {5, 17});
   const EvalSummary input = eval(b, {0, 8, 12}, "bunny_input");
   ASSERT_TRUE(input.method("billboards"));
-  // The view at an input camera draws that camera's texels (50.4 dB measured;
+  // The view at an input camera draws that camera's texels (50-54 dB measured;
   // what differs is the silhouette's pixels the fused surface misses).
   EXPECT_GE(input.method("billboards")->psnr_db_input_views.value_or(0), 45.0);
   EXPECT_GE(input.method("billboards")->coverage, 0.99);
