@@ -419,7 +419,7 @@ namespace {
 
 // Facets of one grid merged into cells 2^levels voxels wide: a cell holds a
 // facet where any of its voxels did, its colour their mean. The cells'
-// children under split() are the original voxels again.
+// children under split_splats() are the original voxels again.
 std::vector<Splat> merge_cells(const std::vector<Splat>& in, int levels, const SplatFitOptions& o) {
   const float w = in.front().voxel;
   const int n = 1 << levels;

@@ -89,6 +89,13 @@ std::vector<Eigen::Vector3f> ball_grid(double radius, double w) {
   return out;
 }
 
+// The sphere's rig: 16 training cameras around it at alternating heights,
+// four views between them that no photo saw.
+void sphere_rig(std::vector<Eigen::Isometry3d>& train, std::vector<Eigen::Isometry3d>& held) {
+  for (int i = 0; i < 16; ++i) train.push_back(ring_camera(i * 22.5, i % 2 ? 25 : -15, 1.4));
+  for (int i = 0; i < 4; ++i) held.push_back(ring_camera(11.25 + i * 90, 5, 1.5));
+}
+
 TEST(SplatFit, RenderIsTheCompositingFormula) {
   // One splat, opacity 0.5, on white: its centre pixel is 0.5 c + 0.5 white.
   Splat s;
@@ -168,8 +175,7 @@ TEST(SplatFit, FitsASphereFromItsPhotosAndDrawsUnseenViews) {
   const auto truth = truth_sphere();
   const std::array<float, 3> bg{1, 1, 1};
   std::vector<Eigen::Isometry3d> train, held;
-  for (int i = 0; i < 16; ++i) train.push_back(ring_camera(i * 22.5, i % 2 ? 25 : -15, 1.4));
-  for (int i = 0; i < 4; ++i) held.push_back(ring_camera(11.25 + i * 90, 5, 1.5));
+  sphere_rig(train, held);
   const Scene tr = photos_of(truth, train, bg), ho = photos_of(truth, held, bg);
 
   SplatFitOptions o;
@@ -205,8 +211,7 @@ TEST(SplatFit, SplitKeepsTheImage) {
   const auto truth = truth_sphere();
   const std::array<float, 3> bg{1, 1, 1};
   std::vector<Eigen::Isometry3d> train, held;
-  for (int i = 0; i < 16; ++i) train.push_back(ring_camera(i * 22.5, i % 2 ? 25 : -15, 1.4));
-  for (int i = 0; i < 4; ++i) held.push_back(ring_camera(11.25 + i * 90, 5, 1.5));
+  sphere_rig(train, held);
   const Scene tr = photos_of(truth, train, bg);
   SplatFitOptions o;
   o.background = bg;

@@ -397,10 +397,12 @@ double max_field_r2(const Intrinsics& K) {
   return 1.44 * r2;
 }
 
+double bounds_radius(const Model& m) { return m.bounds.isEmpty() ? 1.0 : 0.5 * m.bounds.diagonal().norm(); }
+
 // The textured input camera most like the view: near it, looking the same
 // way (the bounds' radius weighs direction against distance). -1: none.
 int nearest_camera(const Model& m, const ViewCamera& view) {
-  const double radius = m.bounds.isEmpty() ? 1.0 : 0.5 * m.bounds.diagonal().norm();
+  const double radius = bounds_radius(m);
   const Eigen::Vector3d z = view.world_from_camera.linear().col(2);
   int best = -1;
   double best_score = std::numeric_limits<double>::infinity();
@@ -913,8 +915,8 @@ void ModelRenderer::draw_billboards(const Pass& pass, DrawStats& st) {
   const int probe = nearest_camera(model_, view);
   glUniform1i(p.uniform("u_probe"), probe);
   // The view from an input camera's own centre (a training view redrawn).
-  const double radius = model_.bounds.isEmpty() ? 1.0 : 0.5 * model_.bounds.diagonal().norm();
-  const bool exact = probe >= 0 && (model_.cameras[size_t(probe)].world_from_camera.translation() - view.eye()).norm() <= 1e-6 * radius;
+  const bool exact = probe >= 0 && (model_.cameras[size_t(probe)].world_from_camera.translation() - view.eye()).norm() <=
+                                        1e-6 * bounds_radius(model_);
   glUniform1i(p.uniform("u_probe_exact"), exact ? 1 : 0);
   glUniform1i(p.uniform("u_refine"), std::max(0, o.refine_steps));
   // In a silhouette-only model the hull is the geometry, and clipping against it is meaningful.
