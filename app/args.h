@@ -93,7 +93,7 @@ struct ReconstructArgs {
 // need parsing are held as text.
 struct DrawArgs {
   DrawOptions d;
-  std::string geometry = "billboards";
+  std::string geometry = "auto";  // fitted where the model has a fit, else billboards
   std::string fitted_pass = "auto";
   std::string gaze;  // "" off, "centre", or X,Y pixels
 };

@@ -24,8 +24,8 @@ void add_preview(CLI::App& app, Chosen& chosen) {
 // DrawOptions: each default is the renderer's own.
 void add_draw_options(CLI::App* sub, DrawArgs& a) {
   DrawOptions& d = a.d;
-  sub->add_option("--geometry", a.geometry, "billboards | mesh (the octree's patch mesh, textured) | surface (the fused surface mesh, textured) | fitted (the billboards fitted to the photos, reconstruct --fit)")
-      ->check(CLI::IsMember({"billboards", "mesh", "surface", "fitted"}))->capture_default_str();
+  sub->add_option("--geometry", a.geometry, "billboards | mesh (the octree's patch mesh, textured) | surface (the fused surface mesh, textured) | fitted (the billboards fitted to the photos, reconstruct --fit) | auto (fitted where the model has a fit, else billboards)")
+      ->check(CLI::IsMember({"auto", "billboards", "mesh", "surface", "fitted"}))->capture_default_str();
   sub->add_option("--fitted-pass", a.fitted_pass, "fitted: where the billboards are composited: cpu (front to back, each pixel "
                   "stopping at its first opaque layer), gl, or auto (cpu when OpenGL itself runs on the CPU: llvmpipe, "
                   "softpipe, SwiftShader; else gl)")

@@ -7,6 +7,7 @@
 // the same run; build seconds, model bytes, frame ms at the images' size.
 #include <algorithm>
 #include <cstdio>
+#include <map>
 #include <optional>
 #include <numeric>
 
@@ -36,6 +37,8 @@ struct SceneRun {
   double fit_spent = 0;      // of which the fits' seconds
   double model_bytes = 0;    // per model, summed (the mean: over the evals)
   double fit_bytes = 0;      // of which splats.bin
+  double photo_bytes = 0;    // of which the camera textures and meshes (what only billboards and meshes read)
+  std::map<std::string, double> render_seconds;  // per method: one `s2r render` of a held-out view, load to PNG
   std::vector<EvalSummary> evals;
   std::string size;          // the images' size
 };
@@ -67,6 +70,9 @@ Status build_and_eval(SceneRun& run, ReconstructJob job, const FrameSource& sour
   run.model_bytes += folder_bytes(job.out);
   std::error_code ec;
   if (const auto b = fs::file_size(job.out / "splats.bin", ec); !ec) run.fit_bytes += double(b);
+  run.photo_bytes += folder_bytes(job.out / "cameras");
+  for (const char* mesh : {"patches.ply", "surface.ply"})
+    if (const auto b = fs::file_size(job.out / mesh, ec); !ec) run.photo_bytes += double(b);
   EvalJob e;
   e.model = job.out;
   e.source = source;
@@ -76,6 +82,22 @@ Status build_and_eval(SceneRun& run, ReconstructJob job, const FrameSource& sour
   auto ev = run_eval_job(e);
   if (!ev) return std::unexpected(with_context(ev.error(), run.scene + ": eval"));
   std::fprintf(stderr, "%s: %s\n", run.scene.c_str(), ev->brief().substr(0, 200).c_str());
+  // A user's `s2r render` of one held-out view with each method, the first
+  // model only: loading the model, drawing, writing the PNG.
+  if (run.evals.empty() && !frames.empty())
+    for (const auto& [method, geometry] : {std::pair{"fitted", DrawOptions::Geometry::kSplats},
+                                           std::pair{"billboards", DrawOptions::Geometry::kBillboards}}) {
+      if (!ev->method(method)) continue;
+      RenderJob r;
+      r.model = job.out;
+      r.view = frames.front();
+      r.source = source;
+      r.draw.geometry = geometry;
+      r.out = eval_out / (std::string("render_") + method + ".png");
+      auto rs = run_render_job(r);
+      if (!rs) return std::unexpected(with_context(rs.error(), run.scene + ": render"));
+      run.render_seconds[method] = rs->seconds;
+    }
   run.evals.push_back(std::move(*ev));
   return {};
 }
@@ -246,11 +268,17 @@ int bench_views(const fs::path& out, int lego_views, double fit_lego, double fit
       auto p = pooled(*run, method);
       if (!p) continue;
       t.row_labels.push_back(run->scene + " " + run->size + ": " + method);
-      // The billboards and the mesh need neither the fit's seconds nor its file.
+      // The billboards and the mesh need neither the fit's seconds nor its
+      // file; the fitted view reads neither the camera textures nor the
+      // meshes (what `reconstruct --no-textures --fit` writes, less the
+      // meshes).
       const bool fitted = method == "fitted";
+      const double mib = (run->model_bytes - (fitted ? run->photo_bytes : run->fit_bytes)) / models / (1 << 20);
       t.rows.push_back({run->build_seconds - (fitted ? 0.0 : run->fit_spent), p->full_psnr, p->full_ssim, p->psnr, p->ssim,
-                        p->frame_ms, (run->model_bytes - (fitted ? 0.0 : run->fit_bytes)) / models / (1 << 20),
-                        double(p->views)});
+                        p->frame_ms, mib, double(p->views)});
+      rep.counts[fmt::format("model_mib_{}_{}", name, method)] = mib;
+      if (auto it = run->render_seconds.find(method); it != run->render_seconds.end())
+        rep.counts[fmt::format("render_seconds_{}_{}", name, method)] = it->second;
       rep.errors[fmt::format("full_psnr_db_{}_{}", name, method)] = p->full_psnr;
       rep.errors[fmt::format("full_ssim_{}_{}", name, method)] = p->full_ssim;
       rep.errors[fmt::format("psnr_db_masked_{}_{}", name, method)] = p->psnr;
@@ -261,9 +289,9 @@ int bench_views(const fs::path& out, int lego_views, double fit_lego, double fit
         std::fprintf(stderr, "%s, %s: against the true matte, silhouette band: mean |alpha error| %.3f, colour %.2f dB\n",
                      run->scene.c_str(), method.c_str(), *p->matte_edge_mae, *p->edge_psnr);
       }
-      std::fprintf(stderr, "%s, %s: full-image PSNR %.2f dB (SSIM %.3f), masked %.2f dB, %zu views, build %.1f s, %.1f ms a frame\n",
-                   run->scene.c_str(), method.c_str(), p->full_psnr, p->full_ssim, p->psnr, p->views, t.rows.back()[0],
-                   p->frame_ms);
+      std::fprintf(stderr, "%s, %s: full-image PSNR %.2f dB (SSIM %.3f), masked %.2f dB, %zu views, build %.1f s, %.1f ms a frame, "
+                   "%.1f MiB read\n", run->scene.c_str(), method.c_str(), p->full_psnr, p->full_ssim, p->psnr, p->views,
+                   t.rows.back()[0], p->frame_ms, mib);
     }
     rep.counts["build_seconds_" + name] = run->build_seconds;
     rep.counts["fit_seconds_" + name] = run->fit_spent;

@@ -43,15 +43,17 @@ std::optional<Eigen::Vector3d> vector3(const std::string& s) {
 }
 
 // The drawing options with the two text flags parsed; an error names the flag.
-Result<DrawOptions> draw_options(const DrawArgs& a) {
+// `model`: where --geometry auto looks for a fit (empty: billboards).
+Result<DrawOptions> draw_options(const DrawArgs& a, const fs::path& model = {}) {
   DrawOptions d = a.d;
   d.fitted_pass = a.fitted_pass == "cpu"  ? DrawOptions::FittedPass::kCpu
                   : a.fitted_pass == "gl" ? DrawOptions::FittedPass::kGl
                                           : DrawOptions::FittedPass::kAuto;
   d.geometry = a.geometry == "mesh"      ? DrawOptions::Geometry::kMesh
                : a.geometry == "surface" ? DrawOptions::Geometry::kSurface
-               : a.geometry == "fitted"  ? DrawOptions::Geometry::kSplats
-                                         : DrawOptions::Geometry::kBillboards;
+               : a.geometry == "fitted" || (a.geometry == "auto" && !model.empty() && model_has_fit(model))
+                   ? DrawOptions::Geometry::kSplats
+                   : DrawOptions::Geometry::kBillboards;
   if (a.gaze.empty()) return d;
   d.lod.field = true;
   d.lod.enabled = true;  // the field scales the octree LOD's thresholds
@@ -109,7 +111,7 @@ int run(const RenderArgs& a) {
   RenderJob job = a.job;
   if (a.view >= 0) job.view = a.view;
   if (!job.view && job.view_file.empty()) return error("give --view I or --pose FILE");
-  auto draw = draw_options(a.draw);
+  auto draw = draw_options(a.draw, job.model);
   if (!draw) return error(draw.error().message);
   job.draw = *draw;
   if (!a.background.empty()) {
@@ -146,7 +148,7 @@ int run(const EvalArgs& a) {
 
 int run(const ViewArgs& a) {
   ViewerOptions o = a.options;
-  auto draw = draw_options(a.draw);
+  auto draw = draw_options(a.draw, o.model);
   if (!draw) return error(draw.error().message);
   o.draw = *draw;
   auto env = environment_setup(a.env);

@@ -105,6 +105,9 @@ struct Model {
 };
 
 Result<Model> load_model(const std::filesystem::path& dir);
+// Whether model.json names fitted billboards (reads only the header; false
+// where it cannot be read: load_model says why).
+bool model_has_fit(const std::filesystem::path& dir);
 // The model's backdrop plate (RGB, its cameras' size), or nothing where it
 // has none; an error where the file is missing, unreadable or of another size.
 Result<std::optional<ImageU8>> load_backdrop(const Model& model, const std::filesystem::path& dir);

@@ -146,6 +146,11 @@ Status save_model(const fs::path& dir, const Model& m) {
   return write_file_atomic(dir / "model.json", dump_json(doc));
 }
 
+bool model_has_fit(const fs::path& dir) {
+  auto j = parse_json_file(dir / "model.json");
+  return j && j->is_object() && j->contains("payloads") && (*j)["payloads"].is_object() && (*j)["payloads"].contains("splats");
+}
+
 Result<Model> load_model(const fs::path& dir) {
   if (auto st = check_links_inside(dir); !st) return std::unexpected(st.error());
   auto j = parse_json_file(dir / "model.json");

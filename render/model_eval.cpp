@@ -112,6 +112,7 @@ void add_selection(Report& rep, const DrawStats& st, const std::string& suffix) 
   rep.counts["facets_drawn" + suffix] = double(st.selection.drawn);
   rep.counts["frame_ms" + suffix] = st.frame_ms;
   if (st.fitted_on_cpu) rep.params["fitted_pass"] = std::string("cpu");
+  if (st.backdrop_own_photo) rep.counts["backdrop_from_the_cameras_own_photo" + suffix] = 1;
   rep.counts["selection_ms" + suffix] = st.selection.seconds * 1e3;
   rep.skipped["facets_outside_frustum" + suffix] = double(st.selection.outside_frustum);
   rep.skipped["facets_back_facing" + suffix] = double(st.selection.back_facing);
@@ -137,8 +138,8 @@ void add_selection(Report& rep, const DrawStats& st, const std::string& suffix) 
 
 struct Renderer {
   std::unique_ptr<GlContext> context;
-  Model model;
-  std::unique_ptr<ModelRenderer> renderer;
+  std::unique_ptr<ModelRenderer> renderer;  // holds the model (one copy in memory)
+  const Model& model() const { return renderer->model(); }
   std::optional<ImageU8> backdrop;  // the model's backdrop plate, where it has one
 };
 
@@ -147,20 +148,19 @@ Result<Renderer> open_model(const fs::path& dir, const fs::path& splats = {}) {
   Renderer r;
   auto model = load_model(dir);
   if (!model) return std::unexpected(model.error());
-  r.model = std::move(*model);
   if (!splats.empty()) {
-    if (r.model.splats.empty()) return fail(dir.string() + ": the model has no fit, so no layout for " + splats.string());
-    auto sp = load_splat_payload(splats, r.model.splat_layout);
+    if (model->splats.empty()) return fail(dir.string() + ": the model has no fit, so no layout for " + splats.string());
+    auto sp = load_splat_payload(splats, model->splat_layout);
     if (!sp) return std::unexpected(sp.error());
-    r.model.splats = std::move(*sp);
+    model->splats = std::move(*sp);
   }
-  auto plate = load_backdrop(r.model, dir);
+  auto plate = load_backdrop(*model, dir);
   if (!plate) return std::unexpected(plate.error());
   r.backdrop = std::move(*plate);
   auto ctx = create_headless_context();
   if (!ctx) return std::unexpected(ctx.error());
   r.context = std::move(*ctx);
-  auto mr = ModelRenderer::create(r.model, dir);
+  auto mr = ModelRenderer::create(std::move(*model), dir);
   if (!mr) return std::unexpected(mr.error());
   r.renderer = std::move(*mr);
   return r;
@@ -184,7 +184,7 @@ Result<RenderSummary> run_render_job(const RenderJob& job) {
   if (!r) return std::unexpected(r.error());
   bool own = false;
   Result<ViewCamera> view = !job.view_file.empty() ? load_view_file(job.view_file)
-                            : job.view              ? frame_view(r->model, job.source, *job.view, &own)
+                            : job.view              ? frame_view(r->model(), job.source, *job.view, &own)
                                                     : Result<ViewCamera>(fail("no view (validate() refuses this)"));
   if (!view) return std::unexpected(view.error());
   const ViewCamera v = scaled(*view, job.scale);
@@ -195,7 +195,7 @@ Result<RenderSummary> run_render_job(const RenderJob& job) {
   rep.stage = "render";
   DrawOptions draw = job.draw;
   // The background asked for, else the model's own (the capture's), else black.
-  if (const auto& bg = job.background ? job.background : r->model.background) std::copy(bg->begin(), bg->end(), draw.background);
+  if (const auto& bg = job.background ? job.background : r->model().background) std::copy(bg->begin(), bg->end(), draw.background);
   // A frame of the model's own capture, at the photos' size: on its backdrop plate.
   if (own && job.backdrop_plate && !job.background && !job.environment && r->backdrop && r->backdrop->width == v.K.width &&
       r->backdrop->height == v.K.height)
@@ -204,7 +204,7 @@ Result<RenderSummary> run_render_job(const RenderJob& job) {
     rep.skipped[!job.backdrop_plate || job.background ? "backdrop_plate_not_asked" : "backdrop_plate_not_this_view"] = 1;
   PreparedEnvironment env;
   if (job.environment) {
-    auto e = prepare_environment(*job.environment, r->model.bounds);
+    auto e = prepare_environment(*job.environment, r->model().bounds);
     if (!e) return std::unexpected(e.error());
     env = std::move(*e);
     draw.environment = env.renderer.get();
@@ -514,9 +514,9 @@ Result<EvalSummary> run_eval_job(const EvalJob& job) {
   // The model's own frames: those of its cameras, when the session is the
   // one it was made from (another session's frame i is a different view).
   std::set<int> in_model;
-  const bool own_capture = r->model.session.empty() || r->model.session == s.name;
+  const bool own_capture = r->model().session.empty() || r->model().session == s.name;
   if (own_capture)
-    for (const auto& c : r->model.cameras) in_model.insert(c.session_frame);
+    for (const auto& c : r->model().cameras) in_model.insert(c.session_frame);
   std::error_code ec;
   fs::create_directories(job.out, ec);
   if (ec) return fail("cannot create " + job.out.string() + ": " + ec.message());
@@ -569,7 +569,7 @@ Result<EvalSummary> run_eval_job(const EvalJob& job) {
   }
   sum.views = job.frames.size();
   sum.held_out_views = size_t(std::count_if(job.frames.begin(), job.frames.end(), [&](int f) { return !in_model.count(f); }));
-  sum.facets = r->model.facets.size();
+  sum.facets = r->model().facets.size();
   rep.counts["views"] = double(sum.views);
   rep.counts["held_out_views"] = double(sum.held_out_views);
   if (r->backdrop) rep.counts["frames_on_backdrop_plate"] = double(sum.frames_on_backdrop_plate);
@@ -595,11 +595,11 @@ Result<std::vector<FrameTiming>> time_orbit(const fs::path& model_dir, const std
   if (!fb) return std::unexpected(fb.error());
   // One frame each unmeasured: shader compilation and texture residency.
   for (const auto& d : draws)
-    if (auto st = r->renderer->draw(default_orbit_view(r->model, width, height), d, *fb); !st) return std::unexpected(st.error());
+    if (auto st = r->renderer->draw(default_orbit_view(r->model(), width, height), d, *fb); !st) return std::unexpected(st.error());
   std::vector<FrameTiming> out(draws.size());
   std::vector<double> drawn(draws.size(), 0);
   for (int i = 0; i < frames; ++i) {
-    const ViewCamera v = default_orbit_view(r->model, width, height, 2 * std::numbers::pi * i / frames);
+    const ViewCamera v = default_orbit_view(r->model(), width, height, 2 * std::numbers::pi * i / frames);
     for (size_t k = 0; k < draws.size(); ++k) {
       auto st = r->renderer->draw(v, draws[k], *fb);
       if (!st) return std::unexpected(st.error());

@@ -416,6 +416,21 @@ int nearest_camera(const Model& m, const ViewCamera& view) {
   return best;
 }
 
+// The textured input camera the view is (its centre, axes and intrinsics,
+// to a millionth): a training view redrawn. -1: none.
+int same_camera(const Model& m, const ViewCamera& view) {
+  const int c = nearest_camera(m, view);
+  if (c < 0) return -1;
+  const ModelCamera& mc = m.cameras[size_t(c)];
+  const Intrinsics &a = mc.intrinsics, &b = view.K;
+  const double tol = 1e-6;
+  const bool same = (mc.world_from_camera.translation() - view.eye()).norm() <= tol * bounds_radius(m) &&
+                    (mc.world_from_camera.linear() - view.world_from_camera.linear()).cwiseAbs().maxCoeff() <= tol &&
+                    a.width == b.width && a.height == b.height && std::abs(a.fx - b.fx) <= tol * a.fx &&
+                    std::abs(a.fy - b.fy) <= tol * a.fy && std::abs(a.cx - b.cx) <= tol * a.fx && std::abs(a.cy - b.cy) <= tol * a.fy;
+  return same ? c : -1;
+}
+
 // Silhouette pixels of a photo are often hit by the object but missed by the
 // fused surface through their centre (the surface sits a fraction of a
 // voxel inside, and the edge pixel is part object): such a texel would never
@@ -521,13 +536,14 @@ struct ModelRenderer::Programs {
   GlProgram billboard, mesh, splat, composited;
 };
 
-Result<std::unique_ptr<ModelRenderer>> ModelRenderer::create(const Model& model, const std::filesystem::path& dir,
+Result<std::unique_ptr<ModelRenderer>> ModelRenderer::create(Model model_in, const std::filesystem::path& dir,
                                                              int threads) {
   if (epoxy_gl_version() < 43)
     return fail("the model renderer needs OpenGL 4.3 (shader storage buffers); this context has " +
                 std::to_string(epoxy_gl_version() / 10) + "." + std::to_string(epoxy_gl_version() % 10));
   std::unique_ptr<ModelRenderer> r(new ModelRenderer());
-  r->model_ = model;
+  r->model_ = std::move(model_in);
+  const Model& model = r->model_;
   r->has_reliable_ = std::any_of(model.facets.begin(), model.facets.end(), [](const FacetRecord& f) { return f.reliability > 0; });
   auto bb = GlProgram::build(shader({kCommon, kViewUniforms, kBillboardVertex}), shader({kCommon, kTexel, kBillboardFragment}));
   if (!bb) return std::unexpected(bb.error());
@@ -542,32 +558,41 @@ Result<std::unique_ptr<ModelRenderer>> ModelRenderer::create(const Model& model,
   const std::string gl_renderer = reinterpret_cast<const char*>(glGetString(GL_RENDERER));
   for (const char* sw : {"llvmpipe", "softpipe", "SwiftShader", "swrast"})
     if (gl_renderer.find(sw) != std::string::npos) r->software_gl_ = true;
+  glGenVertexArrays(1, &r->screen_vao_);  // full-viewport triangles: no attributes (gl_VertexID)
   if (!model.splats.empty()) {
     order_splats_spatially(r->model_.splats, r->model_.splat_layout.stride());
     r->compositor_ = std::make_unique<SplatCompositor>();
-    glGenBuffers(1, &r->splat_ssbo_);
-    glBindBuffer(GL_SHADER_STORAGE_BUFFER, r->splat_ssbo_);
-    glBufferData(GL_SHADER_STORAGE_BUFFER, GLsizeiptr(r->model_.splats.size() * sizeof(float)), r->model_.splats.data(),
-                 GL_STATIC_DRAW);
-    glGenVertexArrays(1, &r->splat_vao_);
-    glBindVertexArray(r->splat_vao_);
-    glGenBuffers(1, &r->splat_order_vbo_);
-    glBindBuffer(GL_ARRAY_BUFFER, r->splat_order_vbo_);
-    glEnableVertexAttribArray(0);
-    glVertexAttribIPointer(0, 1, GL_UNSIGNED_INT, sizeof(uint32_t), nullptr);
-    glVertexAttribDivisor(0, 1);
-    glBindVertexArray(0);
   }
 
+  r->dir_ = dir;
+  r->has_textures_ = std::any_of(model.cameras.begin(), model.cameras.end(), [](const ModelCamera& c) { return !c.texture.empty(); });
+  // What draws from the photos (camera textures, the facets' hierarchy, the
+  // meshes) is loaded when first drawn: a fitted model's view never needs it.
+  if (model.splats.empty())
+    if (auto st = r->load_photo_passes(); !st) return std::unexpected(st.error());
+  if (glGetError() != GL_NO_ERROR) return fail("OpenGL error while uploading the model");
+  return r;
+}
+
+// The camera textures, the facets' hierarchy and buffers, and the meshes:
+// everything billboards and meshes draw with. Once; an error is kept and
+// returned again.
+Status ModelRenderer::load_photo_passes() {
+  if (photo_passes_) return *photo_passes_;
+  photo_passes_ = load_photo_passes_once();
+  return *photo_passes_;
+}
+
+Status ModelRenderer::load_photo_passes_once() {
   // Camera textures, read in parallel, into two texture arrays sized to the
   // largest camera (each layer holds its image in the top-left corner).
-  const size_t n = model.cameras.size();
+  const size_t n = model_.cameras.size();
   std::vector<RgbazImage> tex(n);
   std::vector<std::string> errors(n);
-  parallel_for(int(n), threads, [&](int i) {
-    const auto& c = model.cameras[size_t(i)];
+  parallel_for(int(n), threads_, [&](int i) {
+    const auto& c = model_.cameras[size_t(i)];
     if (c.texture.empty()) return;
-    auto t = read_rgbaz(dir / c.texture);
+    auto t = read_rgbaz(dir_ / c.texture);
     if (!t) errors[size_t(i)] = t.error().message;
     else {
       tex[size_t(i)] = std::move(*t);
@@ -581,25 +606,25 @@ Result<std::unique_ptr<ModelRenderer>> ModelRenderer::create(const Model& model,
   for (size_t i = 0; i < n; ++i) {
     if (tex[i].rgba.empty()) continue;
     layer[i] = layers++;
-    r->texture_width_ = std::max(r->texture_width_, tex[i].rgba.width);
-    r->texture_height_ = std::max(r->texture_height_, tex[i].rgba.height);
+    texture_width_ = std::max(texture_width_, tex[i].rgba.width);
+    texture_height_ = std::max(texture_height_, tex[i].rgba.height);
   }
-  if (layers == 0 && model.splats.empty())
+  if (layers == 0 && model_.splats.empty())
     return fail("the model has no camera textures (reconstructed without textures?): nothing to texture facets with");
   if (layers > 0) {
     GLint max_layers = 0;
     glGetIntegerv(GL_MAX_ARRAY_TEXTURE_LAYERS, &max_layers);
     if (layers > max_layers) return fail(fmt::format("{} camera textures, the OpenGL driver allows {} layers", layers, max_layers));
-    const int W = r->texture_width_, H = r->texture_height_;
-    glGenTextures(1, &r->color_array_);
-    glBindTexture(GL_TEXTURE_2D_ARRAY, r->color_array_);
+    const int W = texture_width_, H = texture_height_;
+    glGenTextures(1, &color_array_);
+    glBindTexture(GL_TEXTURE_2D_ARRAY, color_array_);
     glTexStorage3D(GL_TEXTURE_2D_ARRAY, 1, GL_RGBA8, W, H, layers);
     glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
     glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
     glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
     glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
-    glGenTextures(1, &r->distance_array_);
-    glBindTexture(GL_TEXTURE_2D_ARRAY, r->distance_array_);
+    glGenTextures(1, &distance_array_);
+    glBindTexture(GL_TEXTURE_2D_ARRAY, distance_array_);
     glTexStorage3D(GL_TEXTURE_2D_ARRAY, 1, GL_R32F, W, H, layers);
     glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
     glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
@@ -608,22 +633,23 @@ Result<std::unique_ptr<ModelRenderer>> ModelRenderer::create(const Model& model,
       if (layer[i] < 0) continue;
       const auto& t = tex[i];
       if (t.rgba.channels != 4 || !(t.distance.width == t.rgba.width && t.distance.height == t.rgba.height))
-        return fail(model.cameras[i].texture + ": colour and distance channels differ in size");
-      glBindTexture(GL_TEXTURE_2D_ARRAY, r->color_array_);
+        return fail(model_.cameras[i].texture + ": colour and distance channels differ in size");
+      glBindTexture(GL_TEXTURE_2D_ARRAY, color_array_);
       glTexSubImage3D(GL_TEXTURE_2D_ARRAY, 0, 0, 0, layer[i], t.rgba.width, t.rgba.height, 1, GL_RGBA, GL_UNSIGNED_BYTE,
                       t.rgba.data.data());
-      glBindTexture(GL_TEXTURE_2D_ARRAY, r->distance_array_);
+      glBindTexture(GL_TEXTURE_2D_ARRAY, distance_array_);
       glTexSubImage3D(GL_TEXTURE_2D_ARRAY, 0, 0, 0, layer[i], t.rgba.width, t.rgba.height, 1, GL_RED, GL_FLOAT,
                       t.distance.data.data());
     }
   }
-  r->texture_bytes_ = size_t(r->texture_width_) * r->texture_height_ * layers * 8;
-  r->hierarchy_ = FacetHierarchy::build(model, facet_luminance(model, tex));
+  camera_layer_ = layer;
+  texture_bytes_ = size_t(texture_width_) * texture_height_ * layers * 8;
+  hierarchy_ = FacetHierarchy::build(model_, facet_luminance(model_, tex));
 
   // Cameras: 32 floats each (the GLSL Cam struct, std430).
   std::vector<float> cams(n * 32, 0.f);
   for (size_t i = 0; i < n; ++i) {
-    const auto& c = model.cameras[i];
+    const auto& c = model_.cameras[i];
     float* d = &cams[i * 32];
     const Eigen::Matrix4f cfw = c.world_from_camera.inverse().matrix().cast<float>();
     std::memcpy(d, cfw.data(), 16 * sizeof(float));
@@ -635,22 +661,22 @@ Result<std::unique_ptr<ModelRenderer>> ModelRenderer::create(const Model& model,
                          float(c.world_from_camera.translation().z()), float(max_field_r2(K))};
     std::memcpy(d + 16, v, sizeof(v));
   }
-  glGenBuffers(1, &r->camera_ssbo_);
-  glBindBuffer(GL_SHADER_STORAGE_BUFFER, r->camera_ssbo_);
+  glGenBuffers(1, &camera_ssbo_);
+  glBindBuffer(GL_SHADER_STORAGE_BUFFER, camera_ssbo_);
   glBufferData(GL_SHADER_STORAGE_BUFFER, GLsizeiptr(std::max<size_t>(cams.size(), 32) * sizeof(float)), cams.data(),
                GL_STATIC_DRAW);
 
-  glGenBuffers(1, &r->facet_ssbo_);
-  glBindBuffer(GL_SHADER_STORAGE_BUFFER, r->facet_ssbo_);
+  glGenBuffers(1, &facet_ssbo_);
+  glBindBuffer(GL_SHADER_STORAGE_BUFFER, facet_ssbo_);
   // The model's facets, then the octree nodes' billboards.
-  const auto& facets = r->hierarchy_.facets();
+  const auto& facets = hierarchy_.facets();
   glBufferData(GL_SHADER_STORAGE_BUFFER, GLsizeiptr(std::max<size_t>(facets.size(), 1) * sizeof(FacetRecord)),
                facets.empty() ? nullptr : facets.data(), GL_STATIC_DRAW);
 
-  glGenVertexArrays(1, &r->billboard_vao_);
-  glBindVertexArray(r->billboard_vao_);
-  glGenBuffers(1, &r->instance_vbo_);
-  glBindBuffer(GL_ARRAY_BUFFER, r->instance_vbo_);
+  glGenVertexArrays(1, &billboard_vao_);
+  glBindVertexArray(billboard_vao_);
+  glGenBuffers(1, &instance_vbo_);
+  glBindBuffer(GL_ARRAY_BUFFER, instance_vbo_);
   glEnableVertexAttribArray(0);
   glVertexAttribIPointer(0, 1, GL_UNSIGNED_INT, sizeof(FacetInstance), reinterpret_cast<void*>(offsetof(FacetInstance, facet)));
   glVertexAttribDivisor(0, 1);
@@ -662,10 +688,10 @@ Result<std::unique_ptr<ModelRenderer>> ModelRenderer::create(const Model& model,
   glVertexAttribDivisor(2, 1);
   glBindVertexArray(0);
 
-  const std::optional<std::string>* mesh_paths[2] = {&model.patch_mesh, &model.surface_mesh};
+  const std::optional<std::string>* mesh_paths[2] = {&model_.patch_mesh, &model_.surface_mesh};
   for (int k = 0; k < 2; ++k) {
     if (!*mesh_paths[k]) continue;
-    auto path = resolve_inside(dir, **mesh_paths[k]);
+    auto path = resolve_inside(dir_, **mesh_paths[k]);
     auto mesh = path ? read_ply_mesh(*path) : Result<Mesh>(std::unexpected(path.error()));
     if (!mesh) {
       spdlog::warn("{} not loaded, that mesh pass is off: {}", **mesh_paths[k], mesh.error().message);
@@ -674,19 +700,19 @@ Result<std::unique_ptr<ModelRenderer>> ModelRenderer::create(const Model& model,
     if (mesh->faces.empty()) continue;
     if (k == 0) {
       // Most reliable first: the triangles at or above a threshold are a prefix.
-      const auto rel = triangle_reliability(*mesh, model);
+      const auto rel = triangle_reliability(*mesh, model_);
       std::vector<uint32_t> order(rel.size());
       for (uint32_t t = 0; t < order.size(); ++t) order[t] = t;
       std::stable_sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) { return rel[a] > rel[b]; });
       std::vector<Eigen::Vector3i> faces(order.size());
-      r->triangle_reliability_.resize(order.size());
+      triangle_reliability_.resize(order.size());
       for (size_t t = 0; t < order.size(); ++t) {
         faces[t] = mesh->faces[order[t]];
-        r->triangle_reliability_[t] = rel[order[t]];
+        triangle_reliability_[t] = rel[order[t]];
       }
       mesh->faces = std::move(faces);
     }
-    GpuMesh& g = r->meshes_[k];
+    GpuMesh& g = meshes_[k];
     glGenVertexArrays(1, &g.vao);
     glBindVertexArray(g.vao);
     glGenBuffers(1, &g.vbo);
@@ -702,8 +728,8 @@ Result<std::unique_ptr<ModelRenderer>> ModelRenderer::create(const Model& model,
     glBindVertexArray(0);
     g.triangles = mesh->faces.size();
   }
-  if (glGetError() != GL_NO_ERROR) return fail("OpenGL error while uploading the model");
-  return r;
+  if (glGetError() != GL_NO_ERROR) return fail("OpenGL error while uploading the model's camera textures and meshes");
+  return {};
 }
 
 ModelRenderer::~ModelRenderer() {
@@ -713,6 +739,7 @@ ModelRenderer::~ModelRenderer() {
     if (b) glDeleteBuffers(1, &b);
   if (billboard_vao_) glDeleteVertexArrays(1, &billboard_vao_);
   if (splat_vao_) glDeleteVertexArrays(1, &splat_vao_);
+  if (screen_vao_) glDeleteVertexArrays(1, &screen_vao_);
   for (const auto& m : meshes_)
     if (m.vao) glDeleteVertexArrays(1, &m.vao);
   if (color_array_) glDeleteTextures(1, &color_array_);
@@ -756,6 +783,8 @@ Result<DrawStats> ModelRenderer::draw(const ViewCamera& view, const DrawOptions&
   if (o.geometry == DrawOptions::Geometry::kSplats && model_.splats.empty())
     return fail("the model has no fitted billboards (reconstruct with --fit)");
   const bool mesh_pass = o.geometry == DrawOptions::Geometry::kMesh || o.geometry == DrawOptions::Geometry::kSurface;
+  if (o.geometry != DrawOptions::Geometry::kSplats)
+    if (auto lp = load_photo_passes(); !lp) return std::unexpected(lp.error());
   if (o.geometry != DrawOptions::Geometry::kSplats && color_array_ == 0)
     return fail("the model has no camera textures: only its fitted billboards can be drawn (--geometry fitted)");
   if (mesh_pass && !has_mesh(o.geometry))
@@ -775,7 +804,16 @@ Result<DrawStats> ModelRenderer::draw(const ViewCamera& view, const DrawOptions&
     draw_mesh(pass, g, g.triangles, false, st);
   }
   if (o.backdrop) {
-    if (auto b = draw_backdrop(*o.backdrop, target); !b) return std::unexpected(b.error());
+    // Drawn from the photos, at an input camera itself: behind the object,
+    // that camera's own photo (what it saw behind the object in that frame;
+    // the plate is what the capture's camera sees behind it over all of them).
+    const ImageU8* behind = o.backdrop;
+    if (o.geometry != DrawOptions::Geometry::kSplats)
+      if (const int c = same_camera(model_, view); c >= 0 && camera_layer_[size_t(c)] >= 0 && read_layer(camera_layer_[size_t(c)], view.K.width, view.K.height, own_photo_)) {
+        behind = &own_photo_;
+        st.backdrop_own_photo = true;
+      }
+    if (auto b = draw_backdrop(*behind, target); !b) return std::unexpected(b.error());
     st.backdrop_drawn = true;
   }
   glBindVertexArray(0);
@@ -939,6 +977,20 @@ Status ModelRenderer::draw_splats(const Pass& pass, const Framebuffer& target, D
   if (where == DrawOptions::FittedPass::kCpu || (where == DrawOptions::FittedPass::kAuto && software_gl_))
     return composite_splats_on_cpu(pass, target, st);
   const size_t stride = size_t(model_.splat_layout.stride()), n = model_.splat_count();
+  if (!splat_ssbo_) {  // uploaded when the GL pass first draws (the CPU pass reads the model's own copy)
+    glGenBuffers(1, &splat_ssbo_);
+    glBindBuffer(GL_SHADER_STORAGE_BUFFER, splat_ssbo_);
+    glBufferData(GL_SHADER_STORAGE_BUFFER, GLsizeiptr(model_.splats.size() * sizeof(float)), model_.splats.data(),
+                 GL_STATIC_DRAW);
+    glGenVertexArrays(1, &splat_vao_);
+    glBindVertexArray(splat_vao_);
+    glGenBuffers(1, &splat_order_vbo_);
+    glBindBuffer(GL_ARRAY_BUFFER, splat_order_vbo_);
+    glEnableVertexAttribArray(0);
+    glVertexAttribIPointer(0, 1, GL_UNSIGNED_INT, sizeof(uint32_t), nullptr);
+    glVertexAttribDivisor(0, 1);
+    glBindVertexArray(0);
+  }
   if (!splat_target_ || splat_target_->width() != target.width() || splat_target_->height() != target.height()) {
     auto fb = Framebuffer::create(target.width(), target.height(), true);
     if (!fb) return std::unexpected(fb.error());
@@ -985,6 +1037,27 @@ Status ModelRenderer::draw_splats(const Pass& pass, const Framebuffer& target, D
 
 // The backdrop plate laid "under" what is drawn (colour + (1 - alpha) x
 // plate; alpha kept: what the model covers), one full-viewport triangle.
+// A camera texture's colour (its top-left w x h, rows top to bottom as
+// uploaded), read back through a framebuffer on that layer.
+bool ModelRenderer::read_layer(int layer, int w, int h, ImageU8& out) const {
+  if (layer < 0 || w > texture_width_ || h > texture_height_) return false;
+  GLint was = 0;
+  glGetIntegerv(GL_FRAMEBUFFER_BINDING, &was);
+  GLuint fbo = 0;
+  glGenFramebuffers(1, &fbo);
+  glBindFramebuffer(GL_FRAMEBUFFER, fbo);
+  glFramebufferTextureLayer(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, color_array_, 0, layer);
+  const bool ok = glCheckFramebufferStatus(GL_FRAMEBUFFER) == GL_FRAMEBUFFER_COMPLETE;
+  if (ok) {
+    out = ImageU8(w, h, 4);
+    glPixelStorei(GL_PACK_ALIGNMENT, 1);
+    glReadPixels(0, 0, w, h, GL_RGBA, GL_UNSIGNED_BYTE, out.data.data());
+  }
+  glBindFramebuffer(GL_FRAMEBUFFER, GLuint(was));
+  glDeleteFramebuffers(1, &fbo);
+  return ok;
+}
+
 Status ModelRenderer::draw_backdrop(const ImageU8& plate, const Framebuffer& target) {
   const int W = target.width(), H = target.height();
   if (plate.width != W || plate.height != H || plate.channels < 3)
@@ -1016,7 +1089,7 @@ Status ModelRenderer::draw_backdrop(const ImageU8& plate, const Framebuffer& tar
   const GlProgram& p = programs_->composited;
   glUseProgram(p.id());
   glUniform1i(p.uniform("u_image"), 0);
-  glBindVertexArray(splat_vao_);
+  glBindVertexArray(screen_vao_);
   glDrawArrays(GL_TRIANGLES, 0, 3);
   glDisable(GL_BLEND);
   glEnable(GL_DEPTH_TEST);
@@ -1054,7 +1127,7 @@ Status ModelRenderer::composite_splats_on_cpu(const Pass& pass, const Framebuffe
   const GlProgram& p = programs_->composited;
   glUseProgram(p.id());
   glUniform1i(p.uniform("u_image"), 0);
-  glBindVertexArray(splat_vao_);
+  glBindVertexArray(screen_vao_);
   glDrawArrays(GL_TRIANGLES, 0, 3);
   glDisable(GL_BLEND);
   glEnable(GL_DEPTH_TEST);

@@ -42,6 +42,7 @@
 
 #include <filesystem>
 #include <memory>
+#include <optional>
 #include <string>
 
 #include "core/image.h"
@@ -122,13 +123,16 @@ struct DrawStats {
   double frame_ms = 0;        // until the image is finished (glFinish)
   bool environment_drawn = false, envmap_bound = false;
   bool backdrop_drawn = false;  // the plate behind the model
+  bool backdrop_own_photo = false;  // at an input camera itself (billboards, meshes): its own photo instead of the plate
 };
 
 class ModelRenderer {
  public:
   // Needs a current OpenGL 4.3+ context. Loads the camera textures (RGBA and
-  // distance) into texture arrays and the patch mesh when the model has one.
-  static Result<std::unique_ptr<ModelRenderer>> create(const Model& model, const std::filesystem::path& model_dir,
+  // distance) into texture arrays and the patch mesh when the model has one;
+  // for a model with fitted billboards, only when billboards or a mesh are
+  // first drawn (a fitted view never reads the photos).
+  static Result<std::unique_ptr<ModelRenderer>> create(Model model, const std::filesystem::path& model_dir,
                                                        int threads = 0);
   ~ModelRenderer();
   ModelRenderer(const ModelRenderer&) = delete;
@@ -140,11 +144,16 @@ class ModelRenderer {
 
   const Model& model() const { return model_; }
   bool has_splats() const { return !model_.splats.empty(); }
-  bool has_textures() const { return color_array_ != 0; }  // camera images: what billboards and meshes are textured from
+  bool has_textures() const { return has_textures_; }  // camera images: what billboards and meshes are textured from
+  // The model names that mesh (once loaded: it has triangles).
   bool has_mesh(DrawOptions::Geometry g = DrawOptions::Geometry::kMesh) const {
-    return meshes_[g == DrawOptions::Geometry::kSurface ? 1 : 0].triangles > 0;
+    const bool surface = g == DrawOptions::Geometry::kSurface;
+    if (!photo_passes_) return (surface ? model_.surface_mesh : model_.patch_mesh).has_value();
+    return meshes_[surface ? 1 : 0].triangles > 0;
   }
-  size_t texture_bytes() const { return texture_bytes_; }
+  size_t texture_bytes() const { return texture_bytes_; }  // loaded so far (0 until billboards or a mesh are drawn)
+  bool photo_passes_loaded() const { return photo_passes_.has_value(); }
+  Status load_photo_passes();  // what billboards and meshes need, now (draw() does it when first needed)
   const FacetHierarchy& hierarchy() const { return hierarchy_; }
 
  private:
@@ -165,7 +174,14 @@ class ModelRenderer {
   Status draw_splats(const Pass& pass, const Framebuffer& target, DrawStats& st);
   Status composite_splats_on_cpu(const Pass& pass, const Framebuffer& target, DrawStats& st);
   Status draw_backdrop(const ImageU8& plate, const Framebuffer& target);
+  Status load_photo_passes_once();
+  bool read_layer(int layer, int w, int h, ImageU8& out) const;
   Model model_;
+  std::filesystem::path dir_;
+  bool has_textures_ = false;
+  std::optional<Status> photo_passes_;  // loaded (or failed), once
+  std::vector<int> camera_layer_;       // per model camera: its texture's layer, -1 none
+  ImageU8 own_photo_;                   // an input camera's photo read back, behind its own view
   std::unique_ptr<Programs> programs_;
   unsigned color_array_ = 0, distance_array_ = 0;
   unsigned facet_ssbo_ = 0, camera_ssbo_ = 0;
@@ -179,6 +195,7 @@ class ModelRenderer {
   std::vector<uint32_t> candidates_;
   std::vector<FacetInstance> instances_;
   unsigned splat_ssbo_ = 0, splat_vao_ = 0, splat_order_vbo_ = 0;
+  unsigned screen_vao_ = 0;
   std::unique_ptr<Framebuffer> splat_target_;
   std::vector<uint32_t> splat_order_;
   // The CPU pass: its compositor (buffers kept between frames), its image

@@ -518,6 +518,32 @@ TEST(Fitted, AModelWithoutTexturesDrawsOnlyItsFit) {
   EXPECT_TRUE(g.renderer->draw(arc_camera(0), o, *fb));
 }
 
+
+// A fitted model's view never reads the photos: the camera textures (and
+// the facets' hierarchy, the meshes) are loaded when billboards are first
+// drawn, and the fitted image is the same either way.
+TEST(Fitted, CameraTexturesLoadOnlyWhenBillboardsAreDrawn) {
+  TestModel t = make_model("fitted_lazy", kArc);
+  put_splats(t.model, square_splats());
+  ASSERT_TRUE(save_model(t.dir, t.model));
+  Gl g = open(t);
+  ASSERT_TRUE(g.renderer);
+  EXPECT_TRUE(g.renderer->has_textures());
+  EXPECT_FALSE(g.renderer->photo_passes_loaded());
+  DrawOptions o = background_options();
+  o.geometry = DrawOptions::Geometry::kSplats;
+  const ImageU8 before = rgb(draw(g, arc_camera(10), o));
+  EXPECT_FALSE(g.renderer->photo_passes_loaded());
+  EXPECT_EQ(g.renderer->texture_bytes(), 0u);
+  o.geometry = DrawOptions::Geometry::kBillboards;
+  DrawStats st;
+  draw(g, arc_camera(10), o, &st);
+  EXPECT_TRUE(g.renderer->photo_passes_loaded());
+  EXPECT_GT(g.renderer->texture_bytes(), 0u);
+  EXPECT_GT(st.selection.drawn, 0u);
+  o.geometry = DrawOptions::Geometry::kSplats;
+  EXPECT_EQ(rgb(draw(g, arc_camera(10), o)).data, before.data);
+}
 // A model keeps its capture's background (white for NeRF-synthetic); render
 // draws on it unless asked for another, and a bad one does not load.
 TEST(Fitted, RenderDefaultsToTheModelsBackground) {
@@ -616,6 +642,26 @@ TEST(Fitted, TheBackdropPlateLiesUnderTheModel) {
   ASSERT_TRUE(own);
   EXPECT_EQ(own->at(0, 0, 1), plate.at(0, 0, 1));
   EXPECT_EQ(own->at(3, 1, 2), plate.at(3, 1, 2));
+  // Billboards at that camera itself: behind the object its own photo (the
+  // camera texture), not the plate; the fit has no photos to draw from.
+  EXPECT_EQ(r->report.counts.count("backdrop_from_the_cameras_own_photo"), 0u);
+  job.draw.geometry = G::kBillboards;
+  job.out = t.dir / "own_billboards.png";
+  r = run_render_job(job);
+  ASSERT_TRUE(r) << r.error().message;
+  EXPECT_EQ(r->report.counts.count("backdrop_from_the_cameras_own_photo"), 1u);
+  auto own_bb = read_image_u8(job.out);
+  auto tex = read_rgbaz(t.dir / t.model.cameras[0].texture);
+  ASSERT_TRUE(own_bb && tex);
+  size_t open_px = 0;
+  for (int y = 0; y < tex->rgba.height; ++y)
+    for (int x = 0; x < tex->rgba.width; ++x) {
+      if (tex->rgba.at(x, y, 3)) continue;  // the object in that photo
+      ++open_px;
+      for (int c = 0; c < 3; ++c) ASSERT_NEAR(own_bb->at(x, y, c), tex->rgba.at(x, y, c), 1) << x << "," << y;
+    }
+  EXPECT_GT(open_px, tex->rgba.pixels() / 5);
+  job.draw.geometry = G::kSplats;
   ASSERT_TRUE(save_view_file(t.dir / "view.json", ViewCamera{t.model.cameras[0].intrinsics, t.model.cameras[0].world_from_camera}));
   job.view.reset();
   job.view_file = t.dir / "view.json";

@@ -88,7 +88,7 @@ struct ViewerState {
 
 const char* kHelp =
     "s2r view: left drag orbit | right drag or shift+left pan | wheel zoom\n"
-    "  C depth clipping   1-4 cameras blended   M billboards / patch mesh / surface   B colour by camera\n"
+    "  C depth clipping   1-4 cameras blended   M fitted / billboards / patch mesh / surface   B colour by camera\n"
     "  W wireframe (mesh)   L culling   N / shift+N next / previous input camera   R reset\n"
     "  O octree LOD   [ / ] halve / double its thresholds T_s T_b T_e   G visual-field LOD around the centre\n"
     "  K leave out blended cameras below 10 % share   T patch mesh where reliability >= 0.2 / 0.5 / 0.8 / off\n"
@@ -116,12 +116,21 @@ void on_key(GLFWwindow* w, int key, int, int action, int mods) {
     case GLFW_KEY_2:
     case GLFW_KEY_3:
     case GLFW_KEY_4: s->draw.selection.cameras = key - GLFW_KEY_0; break;
-    case GLFW_KEY_M:  // billboards -> patch mesh -> fused surface -> billboards
-      s->draw.geometry = s->draw.geometry == DrawOptions::Geometry::kBillboards ? DrawOptions::Geometry::kMesh
-                         : s->draw.geometry == DrawOptions::Geometry::kMesh     ? DrawOptions::Geometry::kSurface
-                                                                                : DrawOptions::Geometry::kBillboards;
-      if (!s->renderer->has_mesh(s->draw.geometry)) s->draw.geometry = DrawOptions::Geometry::kBillboards;
+    case GLFW_KEY_M: {  // fitted -> billboards -> patch mesh -> fused surface -> fitted, those the model has
+      using G = DrawOptions::Geometry;
+      const G cycle[] = {G::kSplats, G::kBillboards, G::kMesh, G::kSurface};
+      const auto can = [&](G g) {
+        return g == G::kSplats ? s->renderer->has_splats()
+                               : s->renderer->has_textures() && (g == G::kBillboards || s->renderer->has_mesh(g));
+      };
+      const int at = int(std::find(std::begin(cycle), std::end(cycle), s->draw.geometry) - std::begin(cycle));
+      for (int step = 1; step <= 4; ++step)
+        if (const G g = cycle[(at + step) % 4]; can(g)) {
+          s->draw.geometry = g;
+          break;
+        }
       break;
+    }
     case GLFW_KEY_B: s->draw.color_by_camera = !s->draw.color_by_camera; break;
     case GLFW_KEY_W: s->draw.wireframe = !s->draw.wireframe; break;
     case GLFW_KEY_L: s->draw.selection.frustum_cull = s->draw.selection.backface_cull = !s->draw.selection.frustum_cull; break;
@@ -251,7 +260,7 @@ Result<Report> run_viewer(const ViewerOptions& opt) {
   auto window = GlWindow::create(opt.width, opt.height, "s2r view " + opt.model.string());
   if (!window) return std::unexpected(window.error());
   GlWindow& win = **window;
-  auto renderer = ModelRenderer::create(*model, opt.model);
+  auto renderer = ModelRenderer::create(std::move(*model), opt.model);
   if (!renderer) return std::unexpected(renderer.error());
   ViewerState state;
   state.model = &(*renderer)->model();
@@ -280,8 +289,13 @@ Result<Report> run_viewer(const ViewerOptions& opt) {
   glfwSetCursorPosCallback(win.handle(), on_cursor);
   glfwSetScrollCallback(win.handle(), on_scroll);
   std::fputs(kHelp, stderr);
-  spdlog::info("{} facets, {} cameras, {:.0f} MiB of camera textures; {}", state.model->facets.size(),
-               state.model->cameras.size(), double((*renderer)->texture_bytes()) / (1 << 20), win.describe());
+  if ((*renderer)->photo_passes_loaded())
+    spdlog::info("{} facets, {} cameras, {:.0f} MiB of camera textures; {}", state.model->facets.size(),
+                 state.model->cameras.size(), double((*renderer)->texture_bytes()) / (1 << 20), win.describe());
+  else
+    spdlog::info("{} facets, {} cameras, {} fitted billboards (camera textures loaded when billboards or a mesh are first "
+                 "drawn: M); {}", state.model->facets.size(), state.model->cameras.size(),
+                 state.model->splat_count(), win.describe());
 
   Stopwatch total;
   std::optional<Framebuffer> fb;
@@ -311,10 +325,13 @@ Result<Report> run_viewer(const ViewerOptions& opt) {
     ++frames, ++window_frames;
     ms_sum += st->frame_ms, ms_window += st->frame_ms;
     if (window_frames >= 10 || opt.frames > 0 || status.text.empty()) {
-      const bool mesh = state.draw.geometry != DrawOptions::Geometry::kBillboards;
+      const bool mesh = state.draw.geometry == DrawOptions::Geometry::kMesh || state.draw.geometry == DrawOptions::Geometry::kSurface;
       const auto& se = st->selection;
       status_text =
-          mesh ? fmt::format("{} {} triangles | {:.1f} ms", state.draw.geometry == DrawOptions::Geometry::kMesh ? "patch mesh" : "surface",
+          state.draw.geometry == DrawOptions::Geometry::kSplats
+              ? fmt::format("fitted billboards {} | {:.1f} ms", state.model->splat_count(),
+                            ms_window / window_frames)
+          : mesh ? fmt::format("{} {} triangles | {:.1f} ms", state.draw.geometry == DrawOptions::Geometry::kMesh ? "patch mesh" : "surface",
                              st->triangles, ms_window / window_frames)
                : fmt::format("facets {} drawn, skipped {} frustum {} back-facing {} no camera{} | {} camera{}{} | clip {}{} | {:.1f} ms",
                              se.drawn, se.outside_frustum + st->lod.facets_outside_frustum,
