@@ -132,6 +132,8 @@ void add_view(CLI::App& app, Chosen& chosen) {
   sub->add_option("--frames", o.frames, "draw this many frames and quit (0 = until closed); for tests and timing")
       ->capture_default_str();
   sub->add_option("--screenshot", o.screenshot, "PNG written after the last frame");
+  sub->add_option("--turn", o.orbit_deg_per_frame, "turn the orbit this many degrees a frame (timing a moving view with --frames)")
+      ->check(CLI::Range(0.0, 360.0))->capture_default_str();
   add_draw_options(sub, a->draw);
   add_environment_options(sub, a->env);
   sub->callback([a, &chosen] { chosen = a; });

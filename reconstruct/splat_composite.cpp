@@ -1,6 +1,7 @@
 #include "reconstruct/splat_composite.h"
 
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <chrono>
 #include <cmath>
@@ -173,6 +174,40 @@ bool composite_tile(int, S2R_TILE_ARGS) { return composite_tile_4(p, list, count
 #endif
 #undef S2R_TILE_ARGS
 
+// A tile's entries (depth << 32 | facet) near to far, ties in the order
+// given (facet order): a stable LSD radix sort on the depth's four bytes,
+// passing over a byte every entry shares (the top ones, within a tile).
+// Short lists by insertion. `tmp`: scratch of the same length.
+void sort_tile(uint64_t* a, size_t n, std::vector<uint64_t>& tmp) {
+  if (n < 48) {
+    for (size_t i = 1; i < n; ++i) {
+      const uint64_t e = a[i];
+      const uint32_t d = uint32_t(e >> 32);
+      size_t j = i;
+      for (; j > 0 && uint32_t(a[j - 1] >> 32) > d; --j) a[j] = a[j - 1];
+      a[j] = e;
+    }
+    return;
+  }
+  tmp.resize(n);
+  uint64_t* from = a;
+  uint64_t* to = tmp.data();
+  for (int shift = 32; shift < 64; shift += 8) {
+    uint32_t count[256] = {};
+    for (size_t i = 0; i < n; ++i) ++count[(from[i] >> shift) & 0xff];
+    if (count[(from[0] >> shift) & 0xff] == n) continue;  // every entry shares this byte
+    uint32_t at = 0;
+    for (uint32_t& c : count) {
+      const uint32_t k = c;
+      c = at;
+      at += k;
+    }
+    for (size_t i = 0; i < n; ++i) to[count[(from[i] >> shift) & 0xff]++] = from[i];
+    std::swap(from, to);
+  }
+  if (from != a) std::copy_n(from, n, a);
+}
+
 }  // namespace
 
 struct SplatCompositor::Buffers {
@@ -182,6 +217,7 @@ struct SplatCompositor::Buffers {
   std::vector<uint32_t> counts;   // per share of the facets and tile: entries, then where the share's go
   std::vector<size_t> drawn;      // per share
   std::vector<uint64_t> list;     // per tile, (depth << 32 | facet), sorted near to far in the tile's task
+  std::vector<std::array<uint16_t, 4>> tile_range;  // per drawn facet: its tiles x0, x1, y0, y1 (the count's, for the fill)
   std::vector<uint8_t> early;
 };
 
@@ -264,6 +300,7 @@ void SplatCompositor::composite(const std::vector<float>& records, int coeffs, c
   // tile's entries from share k follow those of share k - 1.
   const int parts = std::max(1, std::min(worker_count(threads), int(n / 65536) + 1));
   b.counts.assign(size_t(parts) * tiles, 0);
+  b.tile_range.resize(n);
   b.drawn.assign(size_t(parts), 0);
   auto share = [&](int k, size_t& lo, size_t& hi) { lo = n * size_t(k) / size_t(parts), hi = n * size_t(k + 1) / size_t(parts); };
   parallel_for(parts, parts, [&](int k) {
@@ -276,6 +313,7 @@ void SplatCompositor::composite(const std::vector<float>& records, int coeffs, c
       ++b.drawn[size_t(k)];
       int x0, x1, y0, y1;
       range(q, x0, x1, y0, y1);
+      b.tile_range[i] = {uint16_t(x0), uint16_t(x1), uint16_t(y0), uint16_t(y1)};
       for (int ty = y0; ty <= y1; ++ty)
         for (int tx = x0; tx <= x1; ++tx) ++count[size_t(ty) * tiles_x + tx];
     }
@@ -297,10 +335,8 @@ void SplatCompositor::composite(const std::vector<float>& records, int coeffs, c
     share(k, lo, hi);
     uint32_t* fill = &b.counts[size_t(k) * tiles];
     for (size_t i = lo; i < hi; ++i) {
-      const ProjectedFacet& q = b.p[i];
-      if (q.o == 0) continue;
-      int x0, x1, y0, y1;
-      range(q, x0, x1, y0, y1);
+      if (b.p[i].o == 0) continue;
+      const auto [x0, x1, y0, y1] = b.tile_range[i];
       const uint64_t entry = uint64_t(b.depth[i]) << 32 | uint64_t(i);
       for (int ty = y0; ty <= y1; ++ty)
         for (int tx = x0; tx <= x1; ++tx) b.list[fill[size_t(ty) * tiles_x + tx]++] = entry;
@@ -323,7 +359,8 @@ void SplatCompositor::composite(const std::vector<float>& records, int coeffs, c
       }
       return;
     }
-    std::sort(b.list.begin() + lo, b.list.begin() + hi);  // near to far, ties in facet order
+    thread_local std::vector<uint64_t> scratch;
+    sort_tile(b.list.data() + lo, hi - lo, scratch);  // near to far, ties in facet order
     b.early[size_t(tile)] = composite_tile(lanes, b.p, b.list.data() + lo, hi - lo, x0, y0, w, h, W, rgba_out.data());
   });
   st.tiles_finished_early = size_t(std::count(b.early.begin(), b.early.end(), uint8_t(1)));
