@@ -86,6 +86,46 @@ Result<double> ssim(const ImageU8& a, const ImageU8& b, const ImageU8* mask) {
   return sum / double(n);
 }
 
+double ssim_and_gradient(const ImageF& x, const ImageF& y, ImageF* d_dx) {
+  const double C1 = 1e-4, C2 = 9e-4;
+  const int type = CV_32FC(x.channels);
+  // Headers on the images' own floats (not written through).
+  const cv::Mat X(x.height, x.width, type, const_cast<float*>(x.data.data()));
+  const cv::Mat Y(y.height, y.width, type, const_cast<float*>(y.data.data()));
+  auto blur = [](const cv::Mat& m) {
+    cv::Mat o;
+    cv::GaussianBlur(m, o, cv::Size(11, 11), 1.5, 1.5, cv::BORDER_CONSTANT);
+    return o;
+  };
+  const cv::Mat mx = blur(X), my = blur(Y), exx = blur(X.mul(X)), eyy = blur(Y.mul(Y)), exy = blur(X.mul(Y));
+  const size_t n = x.data.size();
+  cv::Mat a, b, c;
+  if (d_dx) a.create(X.size(), type), b.create(X.size(), type), c.create(X.size(), type);
+  double sum = 0;
+  const float *pmx = mx.ptr<float>(), *pmy = my.ptr<float>(), *pxx = exx.ptr<float>(), *pyy = eyy.ptr<float>(),
+              *pxy = exy.ptr<float>();
+  for (size_t i = 0; i < n; ++i) {
+    const double ux = pmx[i], uy = pmy[i];
+    const double n1 = 2 * ux * uy + C1, n2 = 2 * (pxy[i] - ux * uy) + C2;
+    const double d1 = ux * ux + uy * uy + C1, d2 = (pxx[i] - ux * ux) + (pyy[i] - uy * uy) + C2;
+    const double S = n1 * n2 / (d1 * d2);
+    sum += S;
+    if (!d_dx) continue;
+    // dS/d(mean x), dS/d(E[x^2]), dS/d(E[xy]), the variances through the raw moments.
+    a.ptr<float>()[i] = float(S * (2 * uy / n1 - 2 * uy / n2 - 2 * ux / d1 + 2 * ux / d2));
+    b.ptr<float>()[i] = float(-S / d2);
+    c.ptr<float>()[i] = float(2 * S / n2);
+  }
+  if (d_dx) {
+    const cv::Mat ga = blur(a), gb = blur(b), gc = blur(c);
+    *d_dx = ImageF(x.width, x.height, x.channels);
+    const float inv = float(1.0 / double(n));
+    const float *pa = ga.ptr<float>(), *pb = gb.ptr<float>(), *pc = gc.ptr<float>();
+    for (size_t i = 0; i < n; ++i) d_dx->data[i] = inv * (pa[i] + 2 * x.data[i] * pb[i] + y.data[i] * pc[i]);
+  }
+  return sum / double(n);
+}
+
 Result<ImageU8> matte_band(const ImageU8& matte, int band_px) {
   if (matte.empty() || matte.channels != 1) return fail("matte band: the matte must be a non-empty single-channel image");
   if (band_px < 0) return fail("matte band: band_px must be >= 0");

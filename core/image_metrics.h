@@ -22,6 +22,17 @@ inline constexpr double kPsnrIdenticalDb = 120.0;
 inline double finite_psnr(double db) { return db < kPsnrIdenticalDb ? db : kPsnrIdenticalDb; }
 Result<double> ssim(const ImageU8& a, const ImageU8& b, const ImageU8* mask = nullptr);
 
+// SSIM as a loss, on float images in 0..1 of the same shape (C1 = 0.01^2,
+// C2 = 0.03^2, the same window): the mean of the SSIM map over every pixel
+// and channel, the window's statistics taken with zeros beyond the edge (a
+// symmetric filter, so the gradient is exact: the same filter applied to
+// the map's derivatives). With `d_dx`, the mean's gradient with respect to
+// each value of `x` (resized to x's shape). Wang, Bovik, Sheikh and
+// Simoncelli, "Image Quality Assessment: From Error Visibility to
+// Structural Similarity" (2004); as a training loss, Kerbl et al., "3D
+// Gaussian Splatting for Real-Time Radiance Field Rendering" (2023).
+double ssim_and_gradient(const ImageF& x, const ImageF& y, ImageF* d_dx = nullptr);
+
 // A silhouette's band: the pixels whose matte is fractional (1..254) or
 // within `band_px` pixels (a square neighbourhood) of where the matte crosses
 // one half. 255 in the band, 0 elsewhere; an empty band where the matte is

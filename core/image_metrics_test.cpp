@@ -2,7 +2,9 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <cstdint>
 
 namespace s2r {
 namespace {
@@ -120,6 +122,37 @@ TEST(MatteError, BadInputIsAnError) {
   const ImageU8 m(8, 8, 1), band(8, 8, 1, 255);
   EXPECT_FALSE(matte_error(ImageU8(8, 7, 1), m, band));
   EXPECT_FALSE(matte_error(ImageU8(8, 8, 4), ImageU8(8, 8, 4), band));
+}
+
+// The SSIM loss's gradient against central differences on small random
+// images (edges included: the window reaches past them), and its value:
+// 1 for identical images, with no gradient there.
+TEST(SsimLoss, GradientMatchesFiniteDifferences) {
+  ImageF x(13, 9, 3), y(13, 9, 3);
+  uint32_t seed = 12345;
+  auto rnd = [&] { return float((seed = seed * 1664525u + 1013904223u) >> 8) / float(1 << 24); };
+  for (size_t i = 0; i < x.data.size(); ++i) y.data[i] = rnd(), x.data[i] = std::clamp(y.data[i] + 0.3f * (rnd() - 0.5f), 0.f, 1.f);
+  ImageF g;
+  const double s = ssim_and_gradient(x, y, &g);
+  EXPECT_GT(s, 0.0);
+  EXPECT_LT(s, 1.0);
+  ASSERT_EQ(g.data.size(), x.data.size());
+  double worst = 0, largest = 0;
+  for (size_t i = 0; i < x.data.size(); i += 7) {
+    const float h = 1e-3f, keep = x.data[i];
+    x.data[i] = keep + h;
+    const double up = ssim_and_gradient(x, y);
+    x.data[i] = keep - h;
+    const double down = ssim_and_gradient(x, y);
+    x.data[i] = keep;
+    const double numeric = (up - down) / (2 * h);
+    worst = std::max(worst, std::abs(numeric - g.data[i]));
+    largest = std::max(largest, std::abs(numeric));
+  }
+  EXPECT_GT(largest, 1e-4);
+  EXPECT_LT(worst, 0.02 * largest) << "largest " << largest;
+  EXPECT_NEAR(ssim_and_gradient(y, y, &g), 1.0, 1e-6);
+  for (float v : g.data) EXPECT_NEAR(v, 0.f, 1e-6f);
 }
 
 }  // namespace

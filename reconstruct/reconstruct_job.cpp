@@ -691,6 +691,7 @@ Status fit_step(const ReconstructJob& job, const Session& s, const std::vector<V
   o.threads = job.threads;
   o.background = fit_background(s, views);
   o.random_background = job.fit_random_background;
+  o.ssim_weight = job.fit_ssim_weight;
   o.seconds_marks = job.fit_snapshots;
   Progress bar("fit", 1000);
   size_t shown = 0;
@@ -744,6 +745,7 @@ Status fit_step(const ReconstructJob& job, const Session& s, const std::vector<V
   rep.params["fit_background"] = plate ? std::string("backdrop_plate")
                                        : fmt::format("{:.3g},{:.3g},{:.3g}", o.background[0], o.background[1], o.background[2]);
   rep.params["fit_sh_degree"] = double(job.fit_sh_degree);
+  rep.params["fit_ssim_weight"] = job.fit_ssim_weight;
   sum.fit = std::move(*fit);
   return {};
 }
@@ -756,6 +758,7 @@ Status ReconstructJob::validate() const {
   if (threads < 0) return fail(ErrorCode::invalid, "threads: must be >= 0 (0 = all cores)");
   if (!(fit_seconds >= 0) || !std::isfinite(fit_seconds)) return fail(ErrorCode::invalid, "fit_seconds: must be >= 0 seconds");
   if (fit_sh_degree < 0 || fit_sh_degree > 2) return fail(ErrorCode::invalid, "fit_sh_degree: must be 0, 1 or 2");
+  if (!(fit_ssim_weight >= 0 && fit_ssim_weight < 1)) return fail(ErrorCode::invalid, "fit_ssim_weight: must be in [0, 1)");
   if (fit_epochs < 0) return fail(ErrorCode::invalid, "fit_epochs: must be >= 0 (0: the seconds alone)");
   return {};
 }

@@ -1,6 +1,7 @@
 #include "reconstruct/splat_fit.h"
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -12,6 +13,7 @@
 
 #include <spdlog/fmt/fmt.h>
 
+#include "core/image_metrics.h"
 #include "core/parallel.h"
 
 namespace s2r {
@@ -69,10 +71,12 @@ struct SplatFrame {
 }  // namespace
 
 void radix_sort(std::vector<std::pair<uint32_t, uint32_t>>& a) {
+  if (a.size() < 2) return;
   std::vector<std::pair<uint32_t, uint32_t>> tmp(a.size());
   for (int shift = 0; shift < 32; shift += 8) {
     size_t count[257] = {};
     for (const auto& e : a) ++count[((e.first >> shift) & 0xff) + 1];
+    if (count[((a.front().first >> shift) & 0xff) + 1] == a.size()) continue;  // every key shares this byte
     for (int i = 0; i < 256; ++i) count[i + 1] += count[i];
     for (const auto& e : a) tmp[count[(e.first >> shift) & 0xff]++] = e;
     a.swap(tmp);
@@ -144,43 +148,75 @@ SplatFrame project(const std::vector<Splat>& splats, int coeffs, const Intrinsic
       out.push_back(p);
     }
   });
-  std::vector<std::pair<uint32_t, uint32_t>> keys;
-  std::vector<Projected> all;
-  for (auto& v : part) all.insert(all.end(), v.begin(), v.end());
-  keys.reserve(all.size());
-  for (size_t i = 0; i < all.size(); ++i) {
-    uint32_t bits;
-    std::memcpy(&bits, &all[i].pc.z(), 4);
-    keys.emplace_back(bits, uint32_t(i));
-  }
+  // Depth keys of the parts' facets, in part order (their index in that
+  // concatenation), sorted; the facets gathered in depth order.
+  std::vector<size_t> offset(part.size() + 1, 0);
+  for (size_t w = 0; w < part.size(); ++w) offset[w + 1] = offset[w] + part[w].size();
+  const size_t total = offset.back();
+  std::vector<std::pair<uint32_t, uint32_t>> keys(total);
+  parallel_for(workers, workers, [&](int w) {
+    const auto& in = part[size_t(w)];
+    for (size_t j = 0; j < in.size(); ++j) {
+      uint32_t bits;
+      std::memcpy(&bits, &in[j].pc.z(), 4);
+      keys[offset[size_t(w)] + j] = {bits, uint32_t(offset[size_t(w)] + j)};
+    }
+  });
   radix_sort(keys);
-  f.p.resize(all.size());
-  for (size_t i = 0; i < keys.size(); ++i) f.p[i] = all[keys[i].second];
-  // Tile lists: count, prefix sums, fill in depth order.
+  f.p.resize(total);
+  constexpr size_t kChunk = 16384;
+  parallel_for(int((total + kChunk - 1) / kChunk), threads, [&](int c) {
+    for (size_t i = size_t(c) * kChunk; i < std::min(total, size_t(c + 1) * kChunk); ++i) {
+      const size_t g = keys[i].second;
+      const size_t w = size_t(std::upper_bound(offset.begin(), offset.end(), g) - offset.begin()) - 1;
+      f.p[i] = part[w][g - offset[w]];
+    }
+  });
+  // Tile lists in depth order: counted and filled by each thread over its
+  // own share of the sorted facets (a tile's entries from share k follow
+  // those of share k - 1), the tile ranges kept from the count to the fill.
   const size_t tiles = size_t(f.tiles_x) * f.tiles_y;
+  const int shares = std::max(1, std::min(worker_count(threads), int(total / 65536) + 1));
+  std::vector<uint32_t> counts(size_t(shares) * tiles, 0);
+  std::vector<std::array<uint16_t, 4>> span(total);
+  auto share = [&](int k, size_t& lo, size_t& hi) { lo = total * size_t(k) / size_t(shares), hi = total * size_t(k + 1) / size_t(shares); };
+  parallel_for(shares, shares, [&](int k) {
+    size_t lo, hi;
+    share(k, lo, hi);
+    uint32_t* count = &counts[size_t(k) * tiles];
+    for (size_t i = lo; i < hi; ++i) {
+      const Projected& p = f.p[i];
+      const float r = std::sqrt(p.r2max);
+      const int x0 = std::max(0, int(std::floor((p.u - r + 0.5f) / kTile)));
+      const int x1 = std::min(f.tiles_x - 1, int(std::floor((p.u + r + 0.5f) / kTile)));
+      const int y0 = std::max(0, int(std::floor((p.v - r + 0.5f) / kTile)));
+      const int y1 = std::min(f.tiles_y - 1, int(std::floor((p.v + r + 0.5f) / kTile)));
+      span[i] = {uint16_t(x0), uint16_t(std::max(x0 - 1, x1)), uint16_t(y0), uint16_t(std::max(y0 - 1, y1))};
+      for (int ty = y0; ty <= y1; ++ty)
+        for (int tx = x0; tx <= x1; ++tx) ++count[size_t(ty) * f.tiles_x + tx];
+    }
+  });
   f.tile_start.assign(tiles + 1, 0);
-  auto range = [&](const Projected& p, int& x0, int& x1, int& y0, int& y1) {
-    const float r = std::sqrt(p.r2max);
-    x0 = std::max(0, int(std::floor((p.u - r + 0.5f) / kTile)));
-    x1 = std::min(f.tiles_x - 1, int(std::floor((p.u + r + 0.5f) / kTile)));
-    y0 = std::max(0, int(std::floor((p.v - r + 0.5f) / kTile)));
-    y1 = std::min(f.tiles_y - 1, int(std::floor((p.v + r + 0.5f) / kTile)));
-  };
-  for (const auto& p : f.p) {
-    int x0, x1, y0, y1;
-    range(p, x0, x1, y0, y1);
-    for (int ty = y0; ty <= y1; ++ty)
-      for (int tx = x0; tx <= x1; ++tx) ++f.tile_start[size_t(ty) * f.tiles_x + tx + 1];
+  for (size_t t = 0; t < tiles; ++t) {
+    uint32_t at = f.tile_start[t];
+    for (int k = 0; k < shares; ++k) {
+      const uint32_t c = counts[size_t(k) * tiles + t];
+      counts[size_t(k) * tiles + t] = at;  // now share k's first slot in tile t
+      at += c;
+    }
+    f.tile_start[t + 1] = at;
   }
-  for (size_t t = 0; t < tiles; ++t) f.tile_start[t + 1] += f.tile_start[t];
   f.tile_list.resize(f.tile_start[tiles]);
-  std::vector<uint32_t> fill(f.tile_start.begin(), f.tile_start.end() - 1);
-  for (size_t i = 0; i < f.p.size(); ++i) {
-    int x0, x1, y0, y1;
-    range(f.p[i], x0, x1, y0, y1);
-    for (int ty = y0; ty <= y1; ++ty)
-      for (int tx = x0; tx <= x1; ++tx) f.tile_list[fill[size_t(ty) * f.tiles_x + tx]++] = uint32_t(i);
-  }
+  parallel_for(shares, shares, [&](int k) {
+    size_t lo, hi;
+    share(k, lo, hi);
+    uint32_t* fill = &counts[size_t(k) * tiles];
+    for (size_t i = lo; i < hi; ++i) {
+      const auto [x0, x1, y0, y1] = span[i];
+      for (int ty = y0; ty <= y1; ++ty)
+        for (int tx = x0; tx <= x1; ++tx) f.tile_list[fill[size_t(ty) * f.tiles_x + tx]++] = uint32_t(i);
+    }
+  });
   return f;
 }
 
@@ -267,10 +303,71 @@ void tile_forward(const SplatFrame& f, int tile, const Behind& bg, TileState& st
     for (int c = 0; c < 3; ++c) st.C[3 * i + c] += st.T[i] * bg.at(st.x0 + i % st.w, st.y0 + i / st.w, c);
 }
 
+// Back to front through one tile as tile_forward left it, the loss's
+// gradient `dC` per pixel (3 a pixel, the tile's layout), into G.
+void tile_backward(const SplatFrame& f, int tile, const Behind& bg, TileState& st, const float* dC, Grad* G) {
+  const int n = st.w * st.h;
+  float S[kTile * kTile * 3];
+  for (int i = 0; i < n; ++i)
+    for (int c = 0; c < 3; ++c) S[3 * i + c] = st.T[i] * bg.at(st.x0 + i % st.w, st.y0 + i / st.w, c);  // what lies behind, the background first
+  const uint32_t lo = f.tile_start[size_t(tile)];
+  uint32_t last = lo;
+  for (int i = 0; i < n; ++i) last = std::max(last, st.end[i]);
+  // Back to front, undoing each splat's step of the transmittance.
+  for (uint32_t j = last; j-- > lo;) {
+    const uint32_t pi = f.tile_list[j];
+    const Projected& p = f.p[pi];
+    int xa, xb, ya, yb;
+    if (!footprint(p, st, xa, xb, ya, yb)) continue;
+    Grad acc{};
+    bool touched = false;
+    for (int y = ya; y <= yb; ++y) {
+      const float dy = float(y) - p.v;
+      const int row = (y - st.y0) * st.w - st.x0;
+      for (int x = xa; x <= xb; ++x) {
+        const int i = row + x;
+        if (j >= st.end[i]) continue;
+        const float dx = float(x) - p.u;
+        const float d2 = dx * dx + dy * dy;
+        if (d2 > p.r2max) continue;
+        const float g = fast_exp(-d2 * p.inv2s2);
+        const float raw = p.o * g;
+        const float alpha = std::min(kAlphaMax, raw);
+        if (alpha < kAlphaMin) continue;
+        touched = true;
+        const float Ti = st.T[i] / (1.f - alpha);
+        const float w = alpha * Ti;
+        float dalpha = 0;
+        for (int c = 0; c < 3; ++c) {
+          acc.c[c] += dC[3 * i + c] * w;
+          dalpha += dC[3 * i + c] * (p.c[c] * Ti - S[3 * i + c] / (1.f - alpha));
+          S[3 * i + c] += p.c[c] * w;
+        }
+        acc.weight += w;
+        st.T[i] = Ti;
+        if (raw >= kAlphaMax) continue;  // clamped: no gradient to o or the footprint
+        acc.o += dalpha * g;
+        const float dg = dalpha * p.o * g * 2.f * p.inv2s2;
+        // g = exp(-d2 / (2 s^2)): dg/ds = g d2 / s^3, dg/du = g dx / s^2.
+        acc.sigma += dg * d2 / p.sigma;
+        acc.u += dg * dx;
+        acc.v += dg * dy;
+      }
+    }
+    if (!touched) continue;
+    Grad& gr = G[pi];
+    for (int c = 0; c < 3; ++c) gr.c[c] += acc.c[c];
+    gr.o += acc.o, gr.sigma += acc.sigma, gr.u += acc.u, gr.v += acc.v, gr.weight += acc.weight;
+  }
+}
+
 // Squared error of one image and, into `grads_out` (per thread, per projected
-// splat; null: the error only), the gradient of `scale` * squared error.
+// splat; null: the error only), the gradient of the loss: `scale` x squared
+// error, or with `ssim_weight` w > 0, (1 - w) x that + w x (1 - SSIM) (the
+// mean of the SSIM map, core/image_metrics.h; all tiles composited first,
+// the map needing each pixel's neighbours).
 double forward_backward(const SplatFrame& f, const ImageU8& target, const Behind& bg, float scale, int threads,
-                        std::vector<std::vector<Grad>>* grads_out) {
+                        std::vector<std::vector<Grad>>* grads_out, float ssim_weight = 0) {
   const int workers = std::max(1, std::min(worker_count(threads), f.tiles_x * f.tiles_y));
   if (grads_out) {
     grads_out->resize(size_t(workers));
@@ -278,11 +375,45 @@ double forward_backward(const SplatFrame& f, const ImageU8& target, const Behind
   }
   std::vector<double> err(size_t(workers), 0.0);
   const int ch = target.channels;
+  if (ssim_weight > 0 && grads_out) {
+    std::vector<TileState> states(size_t(f.tiles_x) * f.tiles_y);
+    ImageF drawn(f.width, f.height, 3), photo(f.width, f.height, 3);
+    for_tiles(f, threads, [&](int tile, int wk) {
+      TileState& st = states[size_t(tile)];
+      tile_forward(f, tile, bg, st);
+      double e = 0;
+      for (int i = 0; i < st.w * st.h; ++i) {
+        const int x = st.x0 + i % st.w, y = st.y0 + i / st.w;
+        const uint8_t* gt = &target.data[(size_t(y) * target.width + x) * ch];
+        for (int c = 0; c < 3; ++c) {
+          const size_t k = (size_t(y) * f.width + x) * 3 + c;
+          drawn.data[k] = st.C[3 * i + c];
+          photo.data[k] = float(gt[c]) * (1.f / 255.f);
+          const float diff = drawn.data[k] - photo.data[k];
+          e += double(diff) * diff;
+        }
+      }
+      err[size_t(wk)] += e;
+    });
+    ImageF dssim;
+    ssim_and_gradient(drawn, photo, &dssim);
+    for_tiles(f, threads, [&](int tile, int wk) {
+      TileState& st = states[size_t(tile)];
+      float dC[kTile * kTile * 3];
+      for (int i = 0; i < st.w * st.h; ++i) {
+        const size_t k0 = (size_t(st.y0 + i / st.w) * f.width + st.x0 + i % st.w) * 3;
+        for (int c = 0; c < 3; ++c)
+          dC[3 * i + c] = (1.f - ssim_weight) * 2.f * scale * (drawn.data[k0 + c] - photo.data[k0 + c]) - ssim_weight * dssim.data[k0 + c];
+      }
+      tile_backward(f, tile, bg, st, dC, (*grads_out)[size_t(wk)].data());
+    });
+    return std::accumulate(err.begin(), err.end(), 0.0);
+  }
   for_tiles(f, threads, [&](int tile, int wk) {
     TileState st;
     tile_forward(f, tile, bg, st);
     const int n = st.w * st.h;
-    float dC[kTile * kTile * 3], S[kTile * kTile * 3];
+    float dC[kTile * kTile * 3];
     double e = 0;
     for (int i = 0; i < n; ++i) {
       const int x = st.x0 + i % st.w, y = st.y0 + i / st.w;
@@ -291,61 +422,11 @@ double forward_backward(const SplatFrame& f, const ImageU8& target, const Behind
         const float diff = st.C[3 * i + c] - float(gt[c]) * (1.f / 255.f);
         e += double(diff) * diff;
         dC[3 * i + c] = 2.f * scale * diff;
-        S[3 * i + c] = st.T[i] * bg.at(x, y, c);  // what lies behind, the background first
       }
     }
     err[size_t(wk)] += e;
     if (!grads_out) return;
-    Grad* G = (*grads_out)[size_t(wk)].data();
-    const uint32_t lo = f.tile_start[size_t(tile)];
-    uint32_t last = lo;
-    for (int i = 0; i < n; ++i) last = std::max(last, st.end[i]);
-    // Back to front, undoing each splat's step of the transmittance.
-    for (uint32_t j = last; j-- > lo;) {
-      const uint32_t pi = f.tile_list[j];
-      const Projected& p = f.p[pi];
-      int xa, xb, ya, yb;
-      if (!footprint(p, st, xa, xb, ya, yb)) continue;
-      Grad acc{};
-      bool touched = false;
-      for (int y = ya; y <= yb; ++y) {
-        const float dy = float(y) - p.v;
-        const int row = (y - st.y0) * st.w - st.x0;
-        for (int x = xa; x <= xb; ++x) {
-          const int i = row + x;
-          if (j >= st.end[i]) continue;
-          const float dx = float(x) - p.u;
-          const float d2 = dx * dx + dy * dy;
-          if (d2 > p.r2max) continue;
-          const float g = fast_exp(-d2 * p.inv2s2);
-          const float raw = p.o * g;
-          const float alpha = std::min(kAlphaMax, raw);
-          if (alpha < kAlphaMin) continue;
-          touched = true;
-          const float Ti = st.T[i] / (1.f - alpha);
-          const float w = alpha * Ti;
-          float dalpha = 0;
-          for (int c = 0; c < 3; ++c) {
-            acc.c[c] += dC[3 * i + c] * w;
-            dalpha += dC[3 * i + c] * (p.c[c] * Ti - S[3 * i + c] / (1.f - alpha));
-            S[3 * i + c] += p.c[c] * w;
-          }
-          acc.weight += w;
-          st.T[i] = Ti;
-          if (raw >= kAlphaMax) continue;  // clamped: no gradient to o or the footprint
-          acc.o += dalpha * g;
-          const float dg = dalpha * p.o * g * 2.f * p.inv2s2;
-          // g = exp(-d2 / (2 s^2)): dg/ds = g d2 / s^3, dg/du = g dx / s^2.
-          acc.sigma += dg * d2 / p.sigma;
-          acc.u += dg * dx;
-          acc.v += dg * dy;
-        }
-      }
-      if (!touched) continue;
-      Grad& gr = G[pi];
-      for (int c = 0; c < 3; ++c) gr.c[c] += acc.c[c];
-      gr.o += acc.o, gr.sigma += acc.sigma, gr.u += acc.u, gr.v += acc.v, gr.weight += acc.weight;
-    }
+    tile_backward(f, tile, bg, st, dC, (*grads_out)[size_t(wk)].data());
   });
   return std::accumulate(err.begin(), err.end(), 0.0);
 }
@@ -518,6 +599,7 @@ Status SplatFitOptions::validate() const {
     if (!(lr >= 0) || !std::isfinite(lr)) return fail(ErrorCode::invalid, "fit: learning rates must be >= 0 and finite");
   if (!(lr_final > 0 && lr_final <= 1)) return fail(ErrorCode::invalid, "fit: lr_final: must be in (0, 1]");
   if (coarse_levels < 0 || coarse_levels > 4) return fail(ErrorCode::invalid, "fit: coarse_levels: must be in 0..4");
+  if (!(ssim_weight >= 0 && ssim_weight < 1)) return fail(ErrorCode::invalid, "fit: ssim_weight: must be in [0, 1)");
   for (float b : background)
     if (!(b >= 0 && b <= 1)) return fail(ErrorCode::invalid, "fit: background: each channel must be in [0, 1]");
   return {};
@@ -748,7 +830,7 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
         const SplatFrame f = project(splats, coeffs, K, view.world_from_camera, o.threads);
         const double t_b = elapsed();
         const float inv = 1.f / float(3.0 * K.width * K.height);
-        sq += forward_backward(f, *target, bg, inv, o.threads, &grads);
+        sq += forward_backward(f, *target, bg, inv, o.threads, &grads, float(o.ssim_weight));
         const double t_c = elapsed();
         sum.seconds_project += t_b - t_a;
         sum.seconds_raster += t_c - t_b;

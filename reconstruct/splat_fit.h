@@ -140,6 +140,11 @@ struct SplatFitOptions {
   // training PSNR (and the divergence test's first figure) are measured on
   // such colours too.
   bool random_background = false;
+  // The loss: (1 - w) x mean squared error + w x (1 - SSIM), as Kerbl et
+  // al. mix L1 and D-SSIM ("3D Gaussian Splatting for Real-Time Radiance
+  // Field Rendering", 2023); 0: squared error alone. The training PSNR
+  // stays the squared error's.
+  double ssim_weight = 0;
   int threads = 0;
   std::vector<double> seconds_marks;  // snapshots of the facets at these seconds (error against run time)
   std::function<void(double fraction)> on_progress;

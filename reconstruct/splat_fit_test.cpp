@@ -204,6 +204,37 @@ TEST(SplatFit, FitsASphereFromItsPhotosAndDrawsUnseenViews) {
   EXPECT_GT(held_psnr, kSanitized ? 18.0 : 26.0);
 }
 
+// The loss with SSIM mixed in (3D Gaussian Splatting's D-SSIM term) fits
+// the same sphere: training error falls as far, the unseen views are as
+// close in PSNR and their structure (SSIM) is kept.
+TEST(SplatFit, SsimInTheLossFitsTheSphere) {
+  const auto truth = truth_sphere();
+  const std::array<float, 3> bg{1, 1, 1};
+  std::vector<Eigen::Isometry3d> train, held;
+  sphere_rig(train, held);
+  const Scene tr = photos_of(truth, train, bg), ho = photos_of(truth, held, bg);
+  SplatFitOptions o;
+  o.background = bg;
+  o.seconds = 120;
+  o.max_epochs = kSanitized ? 4 : 16;
+  o.sh_degree = 0;
+  o.ssim_weight = 0.2;
+  auto splats = init_splats(ball_grid(0.34, 0.04), 0.04f, tr.views, o);
+  auto fit = fit_splats(splats, tr.views, o);
+  ASSERT_TRUE(fit) << fit.error().message;
+  EXPECT_GT(fit->curve.back().train_psnr_db, fit->curve.front().train_psnr_db + (kSanitized ? 2 : 5));
+  double held_psnr = 0, held_ssim = 0;
+  for (size_t i = 0; i < held.size(); ++i) {
+    const ImageU8 drawn = to_u8(render_splats(splats, 1, small_camera(), held[i], bg));
+    held_psnr += *psnr(drawn, ho.photos[i]) / double(held.size());
+    held_ssim += *ssim(drawn, ho.photos[i]) / double(held.size());
+  }
+  std::printf("SSIM weight 0.2: train %.2f dB, held-out %.2f dB, SSIM %.4f\n", fit->train_psnr_db, held_psnr, held_ssim);
+  EXPECT_GT(fit->train_psnr_db, kSanitized ? 18.0 : 28.0);
+  EXPECT_GT(held_psnr, kSanitized ? 18.0 : 26.0);
+  EXPECT_GT(held_ssim, kSanitized ? 0.6 : 0.9);
+}
+
 // Splitting a fitted grid keeps its image: the eight children of each facet
 // drawn at the training cameras and at views the fit never saw against the
 // parents' drawing.
@@ -508,6 +539,9 @@ TEST(SplatFit, OptionsValidate) {
   EXPECT_FALSE(o.validate());
   o = {};
   o.background = {2, 0, 0};
+  EXPECT_FALSE(o.validate());
+  o = {};
+  o.ssim_weight = 1;  // no squared error left, the one the fit reports and guards
   EXPECT_FALSE(o.validate());
   std::vector<Splat> none;
   EXPECT_FALSE(fit_splats(none, {}, SplatFitOptions{}));
