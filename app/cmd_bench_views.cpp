@@ -32,6 +32,7 @@ namespace {
 struct SceneRun {
   std::string scene;
   double fit_seconds = 0;    // each model's fit budget
+  double fit_ssim = 0;       // its loss's SSIM weight (reconstruct --fit-ssim)
   std::vector<std::pair<double, EvalSummary>> snapshots;  // lego: the fit at its marks, evaluated
   double build_seconds = 0;  // every model's reconstruct, summed
   double fit_spent = 0;      // of which the fits' seconds
@@ -63,6 +64,7 @@ std::vector<int> frames_every(int count, int step) {
 Status build_and_eval(SceneRun& run, ReconstructJob job, const FrameSource& source, const std::vector<int>& frames,
                       const fs::path& eval_out) {
   job.fit_seconds = run.fit_seconds;
+  job.fit_ssim_weight = run.fit_ssim;
   auto built = run_reconstruct_job(job);
   if (!built) return std::unexpected(with_context(built.error(), run.scene + ": reconstruct"));
   run.build_seconds += built->seconds;
@@ -102,8 +104,8 @@ Status build_and_eval(SceneRun& run, ReconstructJob job, const FrameSource& sour
   return {};
 }
 
-Result<SceneRun> lego(const fs::path& out, int views, double fit) {
-  SceneRun run{"lego", fit};
+Result<SceneRun> lego(const fs::path& out, int views, double fit, double ssim) {
+  SceneRun run{"lego", fit, ssim};
   const fs::path data = data_dir() / "nerf_synthetic_lego";
   if (!fs::exists(data / "transforms_train.json")) return fail(ErrorCode::not_found, "no lego in " + data.string());
   for (const char* split : {"train", "val"}) {
@@ -137,8 +139,8 @@ Result<SceneRun> lego(const fs::path& out, int views, double fit) {
   return run;
 }
 
-Result<SceneRun> rig(const fs::path& out, const std::string& scene, double fit) {
-  SceneRun run{"rig " + scene, fit};
+Result<SceneRun> rig(const fs::path& out, const std::string& scene, double fit, double ssim) {
+  SceneRun run{"rig " + scene, fit, ssim};
   SynthOptions so;
   so.scene = scene;
   so.views = 24;
@@ -154,8 +156,8 @@ Result<SceneRun> rig(const fs::path& out, const std::string& scene, double fit) 
   return run;
 }
 
-Result<SceneRun> dino(const fs::path& out, double fit) {
-  SceneRun run{"dino ring", fit};
+Result<SceneRun> dino(const fs::path& out, double fit, double ssim) {
+  SceneRun run{"dino ring", fit, ssim};
   fs::remove_all(out / "session");
   if (auto r = import_dataset("middlebury", data_dir() / "middlebury_dino_ring", out / "session", {}); !r)
     return std::unexpected(r.error());
@@ -172,8 +174,8 @@ Result<SceneRun> dino(const fs::path& out, double fit) {
   return run;
 }
 
-Result<SceneRun> bear(const fs::path& out, double fit) {
-  SceneRun run{"bear", fit};
+Result<SceneRun> bear(const fs::path& out, double fit, double ssim) {
+  SceneRun run{"bear", fit, ssim};
   const fs::path session = out / "session", cal = out / "calibration.json", reg = out / "register";
   fs::remove_all(session);
   if (auto r = import_dataset("realsense", data_dir() / "realsense_d435_bear" / "bear", session, {}); !r)
@@ -229,7 +231,7 @@ std::optional<Pooled> pooled(const SceneRun& run, const std::string& method) {
 
 }  // namespace
 
-int bench_views(const fs::path& out, int lego_views, double fit_lego, double fit_others,
+int bench_views(const fs::path& out, int lego_views, double fit_lego, double fit_others, double fit_ssim,
                 const std::vector<std::string>& only) {
   Stopwatch total;
   Report rep;
@@ -237,11 +239,11 @@ int bench_views(const fs::path& out, int lego_views, double fit_lego, double fit
   std::error_code ec;
   fs::create_directories(out, ec);
   std::vector<std::pair<std::string, std::function<Result<SceneRun>()>>> scenes = {
-      {"lego", [&] { return lego(out / "lego", lego_views, fit_lego); }},
-      {"bunny", [&] { return rig(out / "bunny", "bunny", fit_others); }},
-      {"fuzzy", [&] { return rig(out / "fuzzy", "fuzzy", fit_others); }},
-      {"dino", [&] { return dino(out / "dino", fit_others); }},
-      {"bear", [&] { return bear(out / "bear", fit_others); }}};
+      {"lego", [&] { return lego(out / "lego", lego_views, fit_lego, fit_ssim); }},
+      {"bunny", [&] { return rig(out / "bunny", "bunny", fit_others, fit_ssim); }},
+      {"fuzzy", [&] { return rig(out / "fuzzy", "fuzzy", fit_others, fit_ssim); }},
+      {"dino", [&] { return dino(out / "dino", fit_others, fit_ssim); }},
+      {"bear", [&] { return bear(out / "bear", fit_others, fit_ssim); }}};
   SweepTable fit_curve;  // lego: held-out PSNR of the fit against its seconds
   fit_curve.columns = {"fit_seconds", "full_psnr_db", "full_ssim"};
   SweepTable t;
@@ -311,6 +313,7 @@ int bench_views(const fs::path& out, int lego_views, double fit_lego, double fit
   rep.params["lego_views"] = double(lego_views);
   rep.params["fit_seconds_lego"] = fit_lego;
   rep.params["fit_seconds_others"] = fit_others;
+  rep.params["fit_ssim_weight"] = fit_ssim;
   rep.seconds = total.seconds();
   return finish(rep, out / "report.json");
 }

@@ -37,7 +37,7 @@ int run(const RaytraceArgs& a);
 int run(const EnvmapArgs& a);
 int run(const BenchArgs& a);    // app/cmd_bench.cpp
 // app/cmd_bench_views.cpp; fit seconds 0: no fitted billboards.
-int bench_views(const std::filesystem::path& out, int lego_views, double fit_lego, double fit_others,
+int bench_views(const std::filesystem::path& out, int lego_views, double fit_lego, double fit_others, double fit_ssim,
                 const std::vector<std::string>& scenes);
 int run(const SummaryArgs& a);  // app/cmd_summary.cpp
 int run(const BatchArgs& a);    // app/cmd_batch.cpp
