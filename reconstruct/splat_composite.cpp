@@ -10,6 +10,7 @@
 
 #include "core/parallel.h"
 #include "reconstruct/splat_fit.h"
+#include "reconstruct/splat_lanes.h"
 
 namespace s2r {
 
@@ -31,54 +32,8 @@ namespace {
 
 constexpr int kCompositeTile = 16;
 
-// N pixels of a row at a time in GCC's vector extensions: 4 (SSE on
-// x86-64, NEON on arm64, without asking for either) or 8 (AVX2, chosen at
-// run time where the processor has it).
-template <int N>
-struct VectorTypes;
-template <>
-struct VectorTypes<4> {
-  typedef float f __attribute__((vector_size(16)));
-  typedef int32_t i __attribute__((vector_size(16)));
-};
-template <>
-struct VectorTypes<8> {
-  typedef float f __attribute__((vector_size(32)));
-  typedef int32_t i __attribute__((vector_size(32)));
-};
-template <int N>
-struct Lanes {
-  using f = typename VectorTypes<N>::f;
-  using i = typename VectorTypes<N>::i;
-  [[gnu::always_inline]] static inline f all(float s) {
-    f v;
-    for (int k = 0; k < N; ++k) v[k] = s;
-    return v;
-  }
-  [[gnu::always_inline]] static inline f iota(float start) {
-    f v;
-    for (int k = 0; k < N; ++k) v[k] = start + float(k);
-    return v;
-  }
-  // exp(x) for x in [-80, 0]: 2^t as 2^floor(t) times the degree-6
-  // polynomial of splat_fit's fast_exp, the same operations in the same order.
-  [[gnu::always_inline]] static inline f exp(f x) {
-    x = x < all(-80.f) ? all(-80.f) : x;
-    const f t = x * 1.4426950408889634f;
-    i ti = __builtin_convertvector(t, i);          // toward zero
-    ti += (t < __builtin_convertvector(ti, f));    // -1 where that rounded up: floor
-    const f fr = t - __builtin_convertvector(ti, f);
-    const f p = 1.f + fr * (0.69314718f + fr * (0.24022651f + fr * (0.05550411f + fr * (0.00961813f + fr * (0.00133336f + fr * 0.00015404f)))));
-    const i bits = (ti + 127) << 23;
-    return p * std::bit_cast<f>(bits);
-  }
-  [[gnu::always_inline]] static inline f select(i mask, f a) { return std::bit_cast<f>(std::bit_cast<i>(a) & mask); }
-  [[gnu::always_inline]] static inline bool all_set(i m) {
-    int32_t x = -1;
-    for (int k = 0; k < N; ++k) x &= m[k];
-    return x != 0;
-  }
-};
+using simd::Lanes;
+using simd::has_avx2;
 
 double composite_ms_since(std::chrono::steady_clock::time_point t) {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t).count();
@@ -161,15 +116,10 @@ bool composite_tile_4(S2R_TILE_ARGS) { return composite_tile_n<4>(p, list, count
 __attribute__((target("avx2"))) bool composite_tile_8(S2R_TILE_ARGS) {
   return composite_tile_n<8>(p, list, count, x0, y0, w, h, W, out);
 }
-bool has_avx2() {
-  static const bool avx2 = __builtin_cpu_supports("avx2");
-  return avx2;
-}
 bool composite_tile(int lanes, S2R_TILE_ARGS) {
   return lanes == 8 ? composite_tile_8(p, list, count, x0, y0, w, h, W, out) : composite_tile_4(p, list, count, x0, y0, w, h, W, out);
 }
 #else
-bool has_avx2() { return false; }
 bool composite_tile(int, S2R_TILE_ARGS) { return composite_tile_4(p, list, count, x0, y0, w, h, W, out); }
 #endif
 #undef S2R_TILE_ARGS

@@ -15,15 +15,18 @@
 
 #include "core/image_metrics.h"
 #include "core/parallel.h"
+#include "reconstruct/splat_raster.h"
 
 namespace s2r {
 
 namespace {
 
-constexpr int kTile = 16;
-constexpr float kAlphaMin = kSplatAlphaMin;
-constexpr float kAlphaMax = kSplatAlphaMax;
-constexpr float kStopT = kSplatStopT;
+using fit_detail::Behind;
+using fit_detail::Grad;
+using fit_detail::kTile;
+using fit_detail::Projected;
+using fit_detail::SplatFrame;
+using fit_detail::TileState;
 constexpr float kCut = 3.f;  // the footprint is cut at 3 sigma
 
 // SH constants in 3DGS's order.
@@ -33,40 +36,6 @@ constexpr float kC2[5] = {1.0925484305920792f, -1.0925484305920792f, 0.315391565
                           0.5462742152960396f};
 
 float logit(float p) { return std::log(p / (1.f - p)); }
-
-// exp(x) for the footprints' x in [-4.5, 0]: 2^t as 2^floor(t) times a
-// degree-6 polynomial of the fraction (relative error under 2e-5; the
-// compositing rounds alpha far coarser).
-inline float fast_exp(float x) {
-  const float t = std::max(x, -80.f) * 1.4426950408889634f;
-  const float fi = std::floor(t), f = t - fi;
-  const float p = 1.f + f * (0.69314718f + f * (0.24022651f + f * (0.05550411f + f * (0.00961813f + f * (0.00133336f + f * 0.00015404f)))));
-  const uint32_t bits = uint32_t(int32_t(fi) + 127) << 23;
-  float scale;
-  std::memcpy(&scale, &bits, 4);
-  return p * scale;
-}
-
-// One splat as one image sees it.
-struct Projected {
-  float u, v;         // centre, pixels
-  float sigma;        // pixels
-  float inv2s2;       // 1 / (2 sigma^2)
-  float r2max;        // (3 sigma)^2
-  float o;            // opacity
-  float c[3];         // colour
-  Eigen::Vector3f pc; // camera-frame centre
-  uint32_t id;        // splat index
-  uint8_t clamped;    // bit per channel: the colour was clamped at 0
-};
-
-// The projected splats of one image, sorted near to far, and each tile's
-// list of them (indices into `p`, near to far).
-struct SplatFrame {
-  int width = 0, height = 0, tiles_x = 0, tiles_y = 0;
-  std::vector<Projected> p;
-  std::vector<uint32_t> tile_start, tile_list;
-};
 
 }  // namespace
 
@@ -95,8 +64,10 @@ Intrinsics scaled(const Intrinsics& K, int s) {
   return k;
 }
 
-SplatFrame project(const std::vector<Splat>& splats, int coeffs, const Intrinsics& K, const Eigen::Isometry3d& world_from_camera,
-              int threads) {
+}  // namespace
+
+SplatFrame fit_detail::project(const std::vector<Splat>& splats, int coeffs, const Intrinsics& K,
+                               const Eigen::Isometry3d& world_from_camera, int threads) {
   SplatFrame f;
   f.width = K.width, f.height = K.height;
   f.tiles_x = (K.width + kTile - 1) / kTile, f.tiles_y = (K.height + kTile - 1) / kTile;
@@ -128,7 +99,7 @@ SplatFrame project(const std::vector<Splat>& splats, int coeffs, const Intrinsic
       const float r = kCut * sigma;
       if (u + r < -0.5f || v + r < -0.5f || u - r > K.width - 0.5f || v - r > K.height - 0.5f) continue;
       const float o = s.opacity();
-      if (o < kAlphaMin) continue;
+      if (o < kSplatAlphaMin) continue;
       Projected p;
       p.u = u, p.v = v;
       p.sigma = std::max(sigma, 1e-4f);
@@ -220,10 +191,7 @@ SplatFrame project(const std::vector<Splat>& splats, int coeffs, const Intrinsic
   return f;
 }
 
-// Per projected splat, what one thread's pixels owe it.
-struct Grad {
-  float c[3], o, sigma, u, v, weight;
-};
+namespace {
 
 // Tiles handed out one at a time; body(tile, thread).
 void for_tiles(const SplatFrame& f, int threads, const std::function<void(int, int)>& body) {
@@ -235,139 +203,12 @@ void for_tiles(const SplatFrame& f, int threads, const std::function<void(int, i
   });
 }
 
-// One tile's pixels while it is composited: splat by splat in depth
-// order, each over the pixels of its 3-sigma box only (the work is the
-// footprints' area, not the tile's area times its list).
-struct TileState {
-  int x0 = 0, y0 = 0, w = 0, h = 0;
-  float T[kTile * kTile];
-  float C[kTile * kTile * 3];
-  uint32_t end[kTile * kTile];  // list entries [lo, end) were composited
-  bool done[kTile * kTile];
-};
+}  // namespace
 
-// The footprint's pixel box inside the tile; false when empty.
-inline bool footprint(const Projected& p, const TileState& st, int& xa, int& xb, int& ya, int& yb) {
-  const float r = std::sqrt(p.r2max);
-  xa = std::max(st.x0, int(std::ceil(p.u - r))), xb = std::min(st.x0 + st.w - 1, int(std::floor(p.u + r)));
-  ya = std::max(st.y0, int(std::ceil(p.v - r))), yb = std::min(st.y0 + st.h - 1, int(std::floor(p.v + r)));
-  return xa <= xb && ya <= yb;
-}
+namespace fit_detail {
 
-// What lies behind the splats: one colour, or per pixel a plate (RGB, the
-// image's size) where the view has one.
-struct Behind {
-  const float* colour;
-  const ImageU8* plate = nullptr;
-  float at(int x, int y, int c) const { return plate ? float(plate->at(x, y, c)) * (1.f / 255.f) : colour[c]; }
-};
-
-void tile_forward(const SplatFrame& f, int tile, const Behind& bg, TileState& st) {
-  const int tx = tile % f.tiles_x, ty = tile / f.tiles_x;
-  st.x0 = tx * kTile, st.y0 = ty * kTile;
-  st.w = std::min(kTile, f.width - st.x0), st.h = std::min(kTile, f.height - st.y0);
-  const uint32_t lo = f.tile_start[size_t(tile)], hi = f.tile_start[size_t(tile) + 1];
-  const int n = st.w * st.h;
-  std::fill(st.T, st.T + n, 1.f);
-  std::fill(st.C, st.C + 3 * n, 0.f);
-  std::fill(st.end, st.end + n, hi);
-  std::fill(st.done, st.done + n, false);
-  int alive = n;
-  for (uint32_t j = lo; j < hi && alive > 0; ++j) {
-    const Projected& p = f.p[f.tile_list[j]];
-    int xa, xb, ya, yb;
-    if (!footprint(p, st, xa, xb, ya, yb)) continue;
-    for (int y = ya; y <= yb; ++y) {
-      const float dy = float(y) - p.v;
-      const int row = (y - st.y0) * st.w - st.x0;
-      for (int x = xa; x <= xb; ++x) {
-        const int i = row + x;
-        if (st.done[i]) continue;
-        const float dx = float(x) - p.u;
-        const float d2 = dx * dx + dy * dy;
-        if (d2 > p.r2max) continue;
-        const float alpha = std::min(kAlphaMax, p.o * fast_exp(-d2 * p.inv2s2));
-        if (alpha < kAlphaMin) continue;
-        const float next = st.T[i] * (1.f - alpha);
-        if (next < kStopT) {
-          st.done[i] = true, st.end[i] = j, --alive;
-          continue;
-        }
-        const float w = alpha * st.T[i];
-        st.C[3 * i] += w * p.c[0], st.C[3 * i + 1] += w * p.c[1], st.C[3 * i + 2] += w * p.c[2];
-        st.T[i] = next;
-      }
-    }
-  }
-  for (int i = 0; i < n; ++i)
-    for (int c = 0; c < 3; ++c) st.C[3 * i + c] += st.T[i] * bg.at(st.x0 + i % st.w, st.y0 + i / st.w, c);
-}
-
-// Back to front through one tile as tile_forward left it, the loss's
-// gradient `dC` per pixel (3 a pixel, the tile's layout), into G.
-void tile_backward(const SplatFrame& f, int tile, const Behind& bg, TileState& st, const float* dC, Grad* G) {
-  const int n = st.w * st.h;
-  float S[kTile * kTile * 3];
-  for (int i = 0; i < n; ++i)
-    for (int c = 0; c < 3; ++c) S[3 * i + c] = st.T[i] * bg.at(st.x0 + i % st.w, st.y0 + i / st.w, c);  // what lies behind, the background first
-  const uint32_t lo = f.tile_start[size_t(tile)];
-  uint32_t last = lo;
-  for (int i = 0; i < n; ++i) last = std::max(last, st.end[i]);
-  // Back to front, undoing each splat's step of the transmittance.
-  for (uint32_t j = last; j-- > lo;) {
-    const uint32_t pi = f.tile_list[j];
-    const Projected& p = f.p[pi];
-    int xa, xb, ya, yb;
-    if (!footprint(p, st, xa, xb, ya, yb)) continue;
-    Grad acc{};
-    bool touched = false;
-    for (int y = ya; y <= yb; ++y) {
-      const float dy = float(y) - p.v;
-      const int row = (y - st.y0) * st.w - st.x0;
-      for (int x = xa; x <= xb; ++x) {
-        const int i = row + x;
-        if (j >= st.end[i]) continue;
-        const float dx = float(x) - p.u;
-        const float d2 = dx * dx + dy * dy;
-        if (d2 > p.r2max) continue;
-        const float g = fast_exp(-d2 * p.inv2s2);
-        const float raw = p.o * g;
-        const float alpha = std::min(kAlphaMax, raw);
-        if (alpha < kAlphaMin) continue;
-        touched = true;
-        const float Ti = st.T[i] / (1.f - alpha);
-        const float w = alpha * Ti;
-        float dalpha = 0;
-        for (int c = 0; c < 3; ++c) {
-          acc.c[c] += dC[3 * i + c] * w;
-          dalpha += dC[3 * i + c] * (p.c[c] * Ti - S[3 * i + c] / (1.f - alpha));
-          S[3 * i + c] += p.c[c] * w;
-        }
-        acc.weight += w;
-        st.T[i] = Ti;
-        if (raw >= kAlphaMax) continue;  // clamped: no gradient to o or the footprint
-        acc.o += dalpha * g;
-        const float dg = dalpha * p.o * g * 2.f * p.inv2s2;
-        // g = exp(-d2 / (2 s^2)): dg/ds = g d2 / s^3, dg/du = g dx / s^2.
-        acc.sigma += dg * d2 / p.sigma;
-        acc.u += dg * dx;
-        acc.v += dg * dy;
-      }
-    }
-    if (!touched) continue;
-    Grad& gr = G[pi];
-    for (int c = 0; c < 3; ++c) gr.c[c] += acc.c[c];
-    gr.o += acc.o, gr.sigma += acc.sigma, gr.u += acc.u, gr.v += acc.v, gr.weight += acc.weight;
-  }
-}
-
-// Squared error of one image and, into `grads_out` (per thread, per projected
-// splat; null: the error only), the gradient of the loss: `scale` x squared
-// error, or with `ssim_weight` w > 0, (1 - w) x that + w x (1 - SSIM) (the
-// mean of the SSIM map, core/image_metrics.h; all tiles composited first,
-// the map needing each pixel's neighbours).
 double forward_backward(const SplatFrame& f, const ImageU8& target, const Behind& bg, float scale, int threads,
-                        std::vector<std::vector<Grad>>* grads_out, float ssim_weight = 0) {
+                        std::vector<std::vector<Grad>>* grads_out, float ssim_weight, int lanes) {
   const int workers = std::max(1, std::min(worker_count(threads), f.tiles_x * f.tiles_y));
   if (grads_out) {
     grads_out->resize(size_t(workers));
@@ -375,61 +216,74 @@ double forward_backward(const SplatFrame& f, const ImageU8& target, const Behind
   }
   std::vector<double> err(size_t(workers), 0.0);
   const int ch = target.channels;
+  constexpr int kPixels = kTile * kTile;
+  // The squared error's derivative by each pixel's colour, and the error.
+  auto squared_error = [&](const TileState& st, float* dC) {
+    double e = 0;
+    std::fill(dC, dC + 3 * kPixels, 0.f);
+    for (int y = 0; y < st.h; ++y)
+      for (int x = 0; x < st.w; ++x) {
+        const uint8_t* gt = &target.data[(size_t(st.y0 + y) * target.width + st.x0 + x) * ch];
+        for (int c = 0; c < 3; ++c) {
+          const float diff = st.C[c][y * kTile + x] - float(gt[c]) * (1.f / 255.f);
+          e += double(diff) * diff;
+          dC[c * kPixels + y * kTile + x] = 2.f * scale * diff;
+        }
+      }
+    return e;
+  };
   if (ssim_weight > 0 && grads_out) {
     std::vector<TileState> states(size_t(f.tiles_x) * f.tiles_y);
     ImageF drawn(f.width, f.height, 3), photo(f.width, f.height, 3);
     for_tiles(f, threads, [&](int tile, int wk) {
       TileState& st = states[size_t(tile)];
-      tile_forward(f, tile, bg, st);
+      tile_forward(f, tile, bg, st, lanes);
       double e = 0;
-      for (int i = 0; i < st.w * st.h; ++i) {
-        const int x = st.x0 + i % st.w, y = st.y0 + i / st.w;
-        const uint8_t* gt = &target.data[(size_t(y) * target.width + x) * ch];
-        for (int c = 0; c < 3; ++c) {
-          const size_t k = (size_t(y) * f.width + x) * 3 + c;
-          drawn.data[k] = st.C[3 * i + c];
-          photo.data[k] = float(gt[c]) * (1.f / 255.f);
-          const float diff = drawn.data[k] - photo.data[k];
-          e += double(diff) * diff;
+      for (int y = 0; y < st.h; ++y)
+        for (int x = 0; x < st.w; ++x) {
+          const uint8_t* gt = &target.data[(size_t(st.y0 + y) * target.width + st.x0 + x) * ch];
+          for (int c = 0; c < 3; ++c) {
+            const size_t k = (size_t(st.y0 + y) * f.width + st.x0 + x) * 3 + c;
+            drawn.data[k] = st.C[c][y * kTile + x];
+            photo.data[k] = float(gt[c]) * (1.f / 255.f);
+            const float diff = drawn.data[k] - photo.data[k];
+            e += double(diff) * diff;
+          }
         }
-      }
       err[size_t(wk)] += e;
     });
     ImageF dssim;
     ssim_and_gradient(drawn, photo, &dssim);
     for_tiles(f, threads, [&](int tile, int wk) {
       TileState& st = states[size_t(tile)];
-      float dC[kTile * kTile * 3];
-      for (int i = 0; i < st.w * st.h; ++i) {
-        const size_t k0 = (size_t(st.y0 + i / st.w) * f.width + st.x0 + i % st.w) * 3;
-        for (int c = 0; c < 3; ++c)
-          dC[3 * i + c] = (1.f - ssim_weight) * 2.f * scale * (drawn.data[k0 + c] - photo.data[k0 + c]) - ssim_weight * dssim.data[k0 + c];
-      }
-      tile_backward(f, tile, bg, st, dC, (*grads_out)[size_t(wk)].data());
+      alignas(32) float dC[3 * kPixels] = {};
+      for (int y = 0; y < st.h; ++y)
+        for (int x = 0; x < st.w; ++x) {
+          const size_t k0 = (size_t(st.y0 + y) * f.width + st.x0 + x) * 3;
+          for (int c = 0; c < 3; ++c)
+            dC[c * kPixels + y * kTile + x] =
+                (1.f - ssim_weight) * 2.f * scale * (drawn.data[k0 + c] - photo.data[k0 + c]) - ssim_weight * dssim.data[k0 + c];
+        }
+      tile_backward(f, tile, bg, st, dC, (*grads_out)[size_t(wk)].data(), lanes);
     });
     return std::accumulate(err.begin(), err.end(), 0.0);
   }
   for_tiles(f, threads, [&](int tile, int wk) {
     TileState st;
-    tile_forward(f, tile, bg, st);
-    const int n = st.w * st.h;
-    float dC[kTile * kTile * 3];
-    double e = 0;
-    for (int i = 0; i < n; ++i) {
-      const int x = st.x0 + i % st.w, y = st.y0 + i / st.w;
-      const uint8_t* gt = &target.data[(size_t(y) * target.width + x) * ch];
-      for (int c = 0; c < 3; ++c) {
-        const float diff = st.C[3 * i + c] - float(gt[c]) * (1.f / 255.f);
-        e += double(diff) * diff;
-        dC[3 * i + c] = 2.f * scale * diff;
-      }
-    }
-    err[size_t(wk)] += e;
-    if (!grads_out) return;
-    tile_backward(f, tile, bg, st, dC, (*grads_out)[size_t(wk)].data());
+    tile_forward(f, tile, bg, st, lanes);
+    alignas(32) float dC[3 * kPixels];
+    err[size_t(wk)] += squared_error(st, dC);
+    if (grads_out) tile_backward(f, tile, bg, st, dC, (*grads_out)[size_t(wk)].data(), lanes);
   });
   return std::accumulate(err.begin(), err.end(), 0.0);
 }
+
+}  // namespace fit_detail
+
+namespace {
+
+using fit_detail::forward_backward;
+using fit_detail::project;
 
 // Box-filtered by s; a single-channel image stays one channel, any other
 // becomes RGB (its first three).
@@ -580,12 +434,12 @@ ImageF render_splats(const std::vector<Splat>& splats, int coeffs, const Intrins
   if (alpha_out) *alpha_out = ImageF(K.width, K.height, 1);
   for_tiles(f, threads, [&](int tile, int) {
     TileState st;
-    tile_forward(f, tile, Behind{background.data()}, st);
-    for (int i = 0; i < st.w * st.h; ++i) {
-      const int x = st.x0 + i % st.w, y = st.y0 + i / st.w;
-      for (int c = 0; c < 3; ++c) out.at(x, y, c) = st.C[3 * i + c];
-      if (alpha_out) alpha_out->at(x, y) = 1.f - st.T[i];
-    }
+    fit_detail::tile_forward(f, tile, Behind{background.data()}, st);
+    for (int y = 0; y < st.h; ++y)
+      for (int x = 0; x < st.w; ++x) {
+        for (int c = 0; c < 3; ++c) out.at(st.x0 + x, st.y0 + y, c) = st.C[c][y * kTile + x];
+        if (alpha_out) alpha_out->at(st.x0 + x, st.y0 + y) = 1.f - st.T[y * kTile + x];
+      }
   });
   return out;
 }

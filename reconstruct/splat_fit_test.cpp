@@ -1,11 +1,14 @@
 #include "reconstruct/splat_fit.h"
 
 #include <cmath>
+#include <functional>
+#include <numeric>
 
 #include <gtest/gtest.h>
 
 #include "core/image_metrics.h"
 #include "reconstruct/splat_composite.h"
+#include "reconstruct/splat_raster.h"
 
 namespace s2r {
 namespace {
@@ -233,6 +236,155 @@ TEST(SplatFit, SsimInTheLossFitsTheSphere) {
   EXPECT_GT(fit->train_psnr_db, kSanitized ? 18.0 : 28.0);
   EXPECT_GT(held_psnr, kSanitized ? 18.0 : 26.0);
   EXPECT_GT(held_ssim, kSanitized ? 0.6 : 0.9);
+}
+
+// A cloud for the rasterizer's checks: the sphere's facets made partly
+// transparent (opacity 0.15..0.6), wider, with view-dependent colour, so
+// several layers reach every covered pixel and no pixel turns opaque.
+std::vector<Splat> translucent_cloud() {
+  auto cloud = truth_sphere();
+  for (size_t i = 0; i < cloud.size(); ++i) {
+    Splat& s = cloud[i];
+    s.opacity_logit = -1.7f + 2.1f * float((i * 7919) % 101) / 100.f;
+    s.log_sigma = std::log(0.012f + 0.01f * float((i * 104729) % 97) / 96.f);
+    for (int k = 3; k < 12; ++k) s.sh[size_t(k)] = 0.3f * std::sin(float(i * 13 + size_t(k)));
+  }
+  return cloud;
+}
+
+// The camera of those checks: 150 x 120, so the last tile of a row and of
+// a column is partial (150 = 9 x 16 + 6).
+Intrinsics ragged_camera() {
+  Intrinsics K = small_camera();
+  K.width = 150, K.cx = 74.5;
+  return K;
+}
+
+// Every pass's gradient summed over the threads' parts.
+std::vector<fit_detail::Grad> summed(const std::vector<std::vector<fit_detail::Grad>>& parts) {
+  std::vector<fit_detail::Grad> out(parts.front().size(), fit_detail::Grad{});
+  for (const auto& part : parts)
+    for (size_t i = 0; i < part.size(); ++i) {
+      for (int c = 0; c < 3; ++c) out[i].c[c] += part[i].c[c];
+      out[i].o += part[i].o, out[i].sigma += part[i].sigma, out[i].u += part[i].u, out[i].v += part[i].v;
+      out[i].weight += part[i].weight;
+    }
+  return out;
+}
+
+// The fit's rasterizer in 4 and 8 lanes is its scalar reference: the same
+// error and gradient (to float rounding: the lanes sum in another order) of
+// the squared error and of the SSIM loss, on a cloud of translucent facets
+// at a camera whose last tiles are partial.
+TEST(SplatRaster, EveryLaneWidthDrawsAndDifferentiatesAlike) {
+  const auto cloud = translucent_cloud();
+  const Intrinsics K = ragged_camera();
+  const Eigen::Isometry3d T = ring_camera(30, 10, 1.2);
+  const ImageU8 photo = to_u8(render_splats(truth_sphere(), 1, K, T, {1, 1, 1}));
+  const auto f = fit_detail::project(cloud, 4, K, T, 1);
+  ASSERT_GT(f.p.size(), 1000u);
+  const float white[3] = {1, 1, 1};
+  for (float ssim : {0.f, 0.3f}) {
+    SCOPED_TRACE(ssim);
+    std::vector<std::vector<fit_detail::Grad>> ref_parts;
+    const double ref_err = fit_detail::forward_backward(f, photo, {white}, 1.f, 1, &ref_parts, ssim, 1);
+    const auto ref = summed(ref_parts);
+    double scale_c = 0, scale_o = 0, scale_s = 0, scale_uv = 0, scale_w = 0;
+    for (const auto& g : ref) {
+      for (float c : g.c) scale_c = std::max(scale_c, double(std::abs(c)));
+      scale_o = std::max(scale_o, double(std::abs(g.o)));
+      scale_s = std::max(scale_s, double(std::abs(g.sigma)));
+      scale_uv = std::max({scale_uv, double(std::abs(g.u)), double(std::abs(g.v))});
+      scale_w = std::max(scale_w, double(g.weight));
+    }
+    ASSERT_GT(scale_o, 0);
+    ASSERT_GT(scale_uv, 0);
+    for (int lanes : {4, 8}) {
+      SCOPED_TRACE(lanes);
+      std::vector<std::vector<fit_detail::Grad>> parts;
+      const double err = fit_detail::forward_backward(f, photo, {white}, 1.f, 1, &parts, ssim, lanes);
+      EXPECT_NEAR(err, ref_err, 1e-5 * ref_err);
+      const auto g = summed(parts);
+      double worst = 0;
+      for (size_t i = 0; i < g.size(); ++i) {
+        for (int c = 0; c < 3; ++c) worst = std::max(worst, std::abs(g[i].c[c] - ref[i].c[c]) / scale_c);
+        worst = std::max(worst, std::abs(g[i].o - ref[i].o) / scale_o);
+        worst = std::max(worst, std::abs(g[i].sigma - ref[i].sigma) / scale_s);
+        worst = std::max(worst, std::abs(g[i].u - ref[i].u) / scale_uv);
+        worst = std::max(worst, std::abs(g[i].v - ref[i].v) / scale_uv);
+        worst = std::max(worst, std::abs(g[i].weight - ref[i].weight) / scale_w);
+      }
+      EXPECT_LT(worst, 1e-4);
+    }
+  }
+}
+
+// The rasterizer's gradient is the error's derivative: central differences
+// of the squared error by a facet's colour, opacity, sigma and centre (the
+// 3-sigma cut held where it was) against the backward pass, for the
+// heaviest facets. The error is not smooth everywhere: a pixel whose alpha
+// crosses 1/255 or the 3-sigma cut adds a step that the gradient leaves out
+// (as 3D Gaussian Splatting's does), so the facets checked are those whose
+// pixels all stay clear of both circles under the steps taken.
+TEST(SplatRaster, GradientMatchesFiniteDifferences) {
+  const auto cloud = translucent_cloud();
+  const Intrinsics K = ragged_camera();
+  const Eigen::Isometry3d T = ring_camera(-40, 20, 1.2);
+  const ImageU8 photo = to_u8(render_splats(truth_sphere(), 1, K, T, {0, 0, 0}));
+  auto f = fit_detail::project(cloud, 4, K, T, 1);
+  const float black[3] = {0, 0, 0};
+  std::vector<std::vector<fit_detail::Grad>> parts;
+  fit_detail::forward_backward(f, photo, {black}, 1.f, 1, &parts);
+  const auto g = summed(parts);
+  std::vector<size_t> order(g.size());
+  std::iota(order.begin(), order.end(), size_t(0));
+  std::sort(order.begin(), order.end(), [&](size_t a, size_t b) { return g[a].weight > g[b].weight; });
+  auto loss = [&] { return fit_detail::forward_backward(f, photo, {black}, 1.f, 1, nullptr); };
+  // d loss / d x by central differences, x one of the facet's fields.
+  auto numeric = [&](float& x, float h, const std::function<void()>& after = {}) {
+    const float x0 = x;
+    x = x0 + h;
+    if (after) after();
+    const double up = loss();
+    x = x0 - h;
+    if (after) after();
+    const double down = loss();
+    x = x0;
+    if (after) after();
+    return (up - down) / (2.0 * double(h));
+  };
+  const float h_px = 2e-3f, h_o = 1e-3f, h_sigma = 1e-3f;  // sigma's step relative
+  // Whether every pixel stays farther than the steps move them from the cut
+  // (3 sigma) and from where alpha = 1/255.
+  auto clear_of_steps = [&](const fit_detail::Projected& p) {
+    const float r_cut = std::sqrt(p.r2max);
+    const float q = std::sqrt(2.f * std::log(255.f * p.o)), r_min = p.sigma * q;
+    const float move = std::max({h_px, p.sigma * h_o / (p.o * q), r_min * h_sigma}) * 2.f + 1e-3f;
+    for (int y = int(p.v - r_cut) - 1; y <= int(p.v + r_cut) + 1; ++y)
+      for (int x = int(p.u - r_cut) - 1; x <= int(p.u + r_cut) + 1; ++x) {
+        if (x < 0 || y < 0 || x >= K.width || y >= K.height) continue;
+        const float d = std::hypot(float(x) - p.u, float(y) - p.v);
+        if (std::abs(d - r_cut) < move || std::abs(d - r_min) < move) return false;
+      }
+    return true;
+  };
+  int checked = 0;
+  for (size_t k = 0; k < order.size() && checked < 12; ++k) {
+    fit_detail::Projected& p = f.p[order[k]];
+    if (!clear_of_steps(p)) continue;
+    const fit_detail::Grad& a = g[order[k]];
+    SCOPED_TRACE(k);
+    const auto resize = [&p] { p.inv2s2 = 0.5f / (p.sigma * p.sigma); };
+    const double dc = numeric(p.c[1], 1e-2f), d_o = numeric(p.o, h_o), du = numeric(p.u, h_px),
+                 dv = numeric(p.v, h_px), ds = numeric(p.sigma, h_sigma * p.sigma, resize);
+    EXPECT_NEAR(a.c[1], dc, 0.01 * std::abs(dc) + 1e-4);
+    EXPECT_NEAR(a.o, d_o, 0.02 * std::abs(d_o) + 2e-4);
+    EXPECT_NEAR(a.u, du, 0.02 * std::abs(du) + 2e-4);
+    EXPECT_NEAR(a.v, dv, 0.02 * std::abs(dv) + 2e-4);
+    EXPECT_NEAR(a.sigma, ds, 0.02 * std::abs(ds) + 2e-4);
+    ++checked;
+  }
+  EXPECT_EQ(checked, 12);
 }
 
 // Splitting a fitted grid keeps its image: the eight children of each facet

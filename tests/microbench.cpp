@@ -17,6 +17,8 @@
 #include "reconstruct/model.h"
 #include "reconstruct/reconstruct_job.h"
 #include "reconstruct/splat_composite.h"
+#include "reconstruct/splat_fit.h"
+#include "reconstruct/splat_raster.h"
 #include "render/raytrace_job.h"
 
 namespace s2r {
@@ -278,6 +280,53 @@ void BM_SplatComposite(benchmark::State& state) {
   for (auto& [key, counter] : state.counters) counter.flags = benchmark::Counter::kAvgIterations;
 }
 BENCHMARK(BM_SplatComposite)->Arg(4)->Arg(0)->Unit(benchmark::kMillisecond);
+
+// One step of the fit's rasterizer (forward and back through every tile,
+// the gradient of the squared error) at 800 x 800, for a fitted model's
+// facets (S2R_SPLAT_MODEL, as above) at its first cameras; the argument is
+// the lanes (1: the scalar reference, 4, 0: the widest this processor has).
+void BM_SplatFitRaster(benchmark::State& state) {
+  static const std::optional<std::vector<fit_detail::SplatFrame>> frames = []() -> std::optional<std::vector<fit_detail::SplatFrame>> {
+    const char* dir = std::getenv("S2R_SPLAT_MODEL");
+    if (!dir) return std::nullopt;
+    auto m = load_model(dir);
+    if (!m || m->splats.empty() || m->cameras.empty()) return std::nullopt;
+    const int stride = m->splat_layout.stride(), coeffs = m->splat_layout.coeffs();
+    std::vector<Splat> splats(m->splat_count());
+    for (size_t i = 0; i < splats.size(); ++i) {
+      const float* r = &m->splats[i * size_t(stride)];
+      Splat& s = splats[i];
+      s.anchor = Eigen::Vector3f(r[0], r[1], r[2]);
+      s.voxel = 1;
+      s.log_sigma = std::log(r[3]);
+      s.opacity_logit = std::log(r[4] / (1.f - r[4]));
+      for (int k = 0; k < 3 * coeffs; ++k) s.sh[size_t(k)] = r[5 + k];
+    }
+    std::vector<fit_detail::SplatFrame> out;
+    for (size_t v = 0; v < std::min<size_t>(4, m->cameras.size()); ++v) {
+      Intrinsics K = m->cameras[v].intrinsics;
+      const double s = 800.0 / K.width;
+      K.width = 800, K.height = int(std::lround(K.height * s));
+      K.fx *= s, K.fy *= s, K.cx = (K.cx + 0.5) * s - 0.5, K.cy = (K.cy + 0.5) * s - 0.5;
+      out.push_back(fit_detail::project(splats, coeffs, K, m->cameras[v].world_from_camera, 0));
+    }
+    return out;
+  }();
+  if (!frames) {
+    state.SkipWithError("S2R_SPLAT_MODEL: not a fitted model folder");
+    return;
+  }
+  ImageU8 grey(800, 800, 3);
+  std::fill(grey.data.begin(), grey.data.end(), uint8_t(128));
+  const float white[3] = {1, 1, 1};
+  std::vector<std::vector<fit_detail::Grad>> grads;
+  size_t view = 0;
+  for (auto _ : state) {
+    const auto& f = (*frames)[view++ % frames->size()];
+    benchmark::DoNotOptimize(fit_detail::forward_backward(f, grey, {white}, 1.f, 0, &grads, 0.f, int(state.range(0))));
+  }
+}
+BENCHMARK(BM_SplatFitRaster)->Arg(1)->Arg(4)->Arg(0)->Unit(benchmark::kMillisecond);
 
 }  // namespace
 }  // namespace s2r

@@ -1,0 +1,100 @@
+#pragma once
+// The fit's rasterizer (internal to reconstruct/): the projected facets of
+// one image, each 16 x 16 tile composited front to back and then walked
+// back to front for the loss's gradient (splat_fit.h has the image
+// formation). A tile's loops run over a row's pixels 8 at a time (AVX2,
+// where the processor has it) or 4; a scalar version of the same
+// arithmetic is kept as the reference the tests hold the vector ones to.
+
+#include <array>
+#include <cstdint>
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include "core/camera_model.h"
+#include "core/image.h"
+
+namespace s2r {
+struct Splat;
+}
+
+namespace s2r::fit_detail {
+
+inline constexpr int kTile = 16;
+
+// One facet as one image sees it.
+struct Projected {
+  float u, v;         // centre, pixels
+  float sigma;        // pixels
+  float inv2s2;       // 1 / (2 sigma^2)
+  float r2max;        // (3 sigma)^2
+  float o;            // opacity
+  float c[3];         // colour
+  Eigen::Vector3f pc; // camera-frame centre
+  uint32_t id;        // facet index
+  uint8_t clamped;    // bit per channel: the colour was clamped at 0
+};
+
+// The projected facets of one image, sorted near to far, and each tile's
+// list of them (indices into `p`, near to far).
+struct SplatFrame {
+  int width = 0, height = 0, tiles_x = 0, tiles_y = 0;
+  std::vector<Projected> p;
+  std::vector<uint32_t> tile_start, tile_list;
+};
+
+// Per projected facet, what one thread's pixels owe it: the loss's
+// derivatives by its colour, opacity, sigma and centre, and the summed
+// compositing weight of the pixels it reached.
+struct Grad {
+  float c[3], o, sigma, u, v, weight;
+};
+
+// What lies behind the facets: one colour, or per pixel a plate (RGB, the
+// image's size) where the view has one.
+struct Behind {
+  const float* colour;
+  const ImageU8* plate = nullptr;
+  float at(int x, int y, int c) const { return plate ? float(plate->at(x, y, c)) * (1.f / 255.f) : colour[c]; }
+};
+
+// One tile as tile_forward leaves it for tile_backward. Pixel (x, y) of the
+// tile is entry y * kTile + x whatever the tile's width; colour planar.
+struct TileState {
+  int x0 = 0, y0 = 0, w = 0, h = 0;
+  alignas(32) float T[kTile * kTile];      // transmittance left
+  alignas(32) float C[3][kTile * kTile];   // colour, the background included
+  alignas(32) int32_t end[kTile * kTile];  // list entries [lo, end) were composited
+  alignas(32) int32_t done[kTile * kTile]; // 0, or -1 once opaque (and past the image's edge)
+};
+
+// The lanes the rasterizer uses: 8 where the processor has AVX2, else 4.
+int widest_lanes();
+
+// Composites the tile's list into `st` (`lanes`: 1, the scalar reference;
+// 4; 8; 0: widest_lanes()).
+void tile_forward(const SplatFrame& f, int tile, const Behind& bg, TileState& st, int lanes = 0);
+
+// Back to front through the tile as tile_forward left it, the loss's
+// derivative by each pixel's colour in `dC` (planar, 3 x kTile^2, the
+// tile's layout), added into G (per projected facet). Consumes st.T.
+void tile_backward(const SplatFrame& f, int tile, const Behind& bg, TileState& st, const float* dC, Grad* G,
+                   int lanes = 0);
+
+// The facets in front of the camera whose footprints reach the image,
+// sorted near to far, and each tile's list (defined in splat_fit.cpp).
+SplatFrame project(const std::vector<Splat>& splats, int coeffs, const Intrinsics& K,
+                   const Eigen::Isometry3d& world_from_camera, int threads);
+
+// The squared error of one image and, into `grads_out` (per thread, per
+// projected facet; null: the error only), the gradient of the loss: `scale`
+// x squared error, or with `ssim_weight` w > 0, (1 - w) x that + w x (1 -
+// SSIM) (the mean of the SSIM map, core/image_metrics.h; all tiles
+// composited first, the map needing each pixel's neighbours). `lanes` as
+// tile_forward's.
+double forward_backward(const SplatFrame& f, const ImageU8& target, const Behind& bg, float scale, int threads,
+                        std::vector<std::vector<Grad>>* grads_out, float ssim_weight = 0, int lanes = 0);
+
+}  // namespace s2r::fit_detail
