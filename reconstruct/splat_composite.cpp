@@ -95,7 +95,7 @@ template <int N>
       ok &= ~fin;
       const vf aw = L::select(ok, a * Tv);
       R[y][g] += aw * s.c[0], Gr[y][g] += aw * s.c[1], B[y][g] += aw * s.c[2];
-      T[y][g] = std::bit_cast<vf>((std::bit_cast<vi>(next) & ok) | (std::bit_cast<vi>(Tv) & ~ok));
+      T[y][g] = L::blend(ok, next, Tv);
     }
   }
   const bool finished = open == 0;
