@@ -128,6 +128,11 @@ void add_reconstruct(CLI::App& app, Chosen& chosen) {
                   "the fit's loss: (1 - W) x squared error + W x (1 - SSIM), as 3D Gaussian Splatting mixes in D-SSIM; 0: squared error alone")
       ->check(CLI::Range(0.0, 0.95))
       ->capture_default_str();
+  sub->add_option("--fit-depth", job.fit_depth_weight,
+                  "captures with depth: the fit's loss adds W x the squared distance (in voxels) of each pixel's opacity "
+                  "from the fused depth surface, so facets stay on the surface the depth camera saw; 0: colour alone")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
   sub->add_option("--fit-snapshots", job.fit_snapshots,
                   "S,T,...: also write the fit as it was at these seconds (splats_<S>s.bin; s2r eval --splats)")
       ->delimiter(',');

@@ -119,7 +119,8 @@ class SparseVolume {
   // The fused surface as triangles (OpenVDB volume-to-mesh at sdf = 0, limited
   // to observed surface voxels) plus the fuzzy/hull voxels' closed hull.
   // `evidence`: what evidence() returned (its depth voxels bound the mesher).
-  Mesh surface_mesh(const std::vector<EvidenceVoxel>& evidence) const;
+  // `depth_faces`: the count of the leading faces that are the depth surface.
+  Mesh surface_mesh(const std::vector<EvidenceVoxel>& evidence, size_t* depth_faces = nullptr) const;
 
   // Where fitted facets may start (reconstruct/splat_fit.h): every voxel of
   // the visual hull, and depth-observed voxels within `band_m` of the fused

@@ -26,7 +26,7 @@ std::vector<std::pair<Eigen::Vector3i, float>> SparseVolume::samples() const {
   return out;
 }
 
-Mesh SparseVolume::surface_mesh(const std::vector<EvidenceVoxel>& evidence) const {
+Mesh SparseVolume::surface_mesh(const std::vector<EvidenceVoxel>& evidence, size_t* depth_faces) const {
   const Impl& m = *impl_;
   Mesh mesh;
   auto append = [&](const openvdb::tools::VolumeToMesh& mesher) {
@@ -84,6 +84,7 @@ Mesh SparseVolume::surface_mesh(const std::vector<EvidenceVoxel>& evidence) cons
     mesher(*sdf);
     append(mesher);
   }
+  if (depth_faces) *depth_faces = mesh.faces.size();
   // Fuzzy / hull voxels: the closed surface around them.
   if (m.fuzzy && m.fuzzy->activeVoxelCount() > 0) {
     const auto& source = m.hull_only ? m.hull : m.fuzzy;

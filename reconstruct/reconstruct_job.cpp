@@ -664,7 +664,7 @@ std::array<float, 3> fit_background(const Session& s, const std::vector<View>& v
 // photos (only the views the model is built from), written as splats.bin
 // with the fit's error against seconds as fit.csv.
 Status fit_step(const ReconstructJob& job, const Session& s, const std::vector<View>& views, const SparseVolume& volume,
-                double w0, const ImageU8* plate, Model& model, ReconstructSummary& sum) {
+                double w0, const ImageU8* plate, const Mesh& depth_surface, Model& model, ReconstructSummary& sum) {
   Report& rep = sum.report;
   const auto anchors = volume.fit_candidates(2 * w0);
   if (anchors.empty()) {
@@ -684,6 +684,19 @@ Status fit_step(const ReconstructJob& job, const Session& s, const std::vector<V
       for (size_t k = 0; k < 3; ++k) rgb[i].data[p * 3 + k] = c.data[p * size_t(c.channels) + std::min<size_t>(k, size_t(c.channels) - 1)];
     sv.push_back({views[i].K, views[i].world_from_camera, &rgb[i], plate, views[i].matte.empty() ? nullptr : &views[i].matte});
   }
+  // Where the capture has depth, each camera's distance to the fused depth
+  // surface (not the hull's closure around what depth did not see).
+  std::vector<ImageF> depth(views.size());
+  if (job.fit_depth_weight > 0 && !depth_surface.faces.empty()) {
+    const MeshRasterizer raster(depth_surface, MeshRasterizer::Faces::kInwardWound);
+    parallel_for(int(views.size()), job.threads, [&](int i) {
+      depth[size_t(i)] = raster.distance_image(views[size_t(i)].K, views[size_t(i)].world_from_camera);
+      sv[size_t(i)].depth = &depth[size_t(i)];
+    });
+    rep.counts["fit_depth_views"] = double(views.size());
+  } else if (job.fit_depth_weight > 0) {
+    rep.skipped["fit_depth_without_a_depth_surface"] = 1;
+  }
   SplatFitOptions o;
   o.seconds = job.fit_seconds;
   o.sh_degree = job.fit_sh_degree;
@@ -692,6 +705,7 @@ Status fit_step(const ReconstructJob& job, const Session& s, const std::vector<V
   o.background = fit_background(s, views);
   o.random_background = job.fit_random_background;
   o.ssim_weight = job.fit_ssim_weight;
+  o.depth_weight = job.fit_depth_weight;
   o.seconds_marks = job.fit_snapshots;
   Progress bar("fit", 1000);
   size_t shown = 0;
@@ -746,6 +760,11 @@ Status fit_step(const ReconstructJob& job, const Session& s, const std::vector<V
                                        : fmt::format("{:.3g},{:.3g},{:.3g}", o.background[0], o.background[1], o.background[2]);
   rep.params["fit_sh_degree"] = double(job.fit_sh_degree);
   rep.params["fit_ssim_weight"] = job.fit_ssim_weight;
+  rep.params["fit_depth_weight"] = job.fit_depth_weight;
+  if (fit->initial_depth_rms_m > 0) {
+    rep.errors["fit_initial_depth_rms_mm"] = fit->initial_depth_rms_m * 1e3;
+    rep.errors["fit_depth_rms_mm"] = fit->depth_rms_m * 1e3;
+  }
   sum.fit = std::move(*fit);
   return {};
 }
@@ -759,6 +778,7 @@ Status ReconstructJob::validate() const {
   if (!(fit_seconds >= 0) || !std::isfinite(fit_seconds)) return fail(ErrorCode::invalid, "fit_seconds: must be >= 0 seconds");
   if (fit_sh_degree < 0 || fit_sh_degree > 2) return fail(ErrorCode::invalid, "fit_sh_degree: must be 0, 1 or 2");
   if (!(fit_ssim_weight >= 0 && fit_ssim_weight < 1)) return fail(ErrorCode::invalid, "fit_ssim_weight: must be in [0, 1)");
+  if (!(fit_depth_weight >= 0) || !std::isfinite(fit_depth_weight)) return fail(ErrorCode::invalid, "fit_depth_weight: must be >= 0 and finite");
   if (fit_epochs < 0) return fail(ErrorCode::invalid, "fit_epochs: must be >= 0 (0: the seconds alone)");
   return {};
 }
@@ -817,7 +837,8 @@ Result<ReconstructSummary> run_reconstruct_job(const ReconstructJob& job) {
   rep.counts["active_voxels"] = double(volume.active_voxels());
   rep.skipped["voxels_without_evidence"] = double(volume.active_voxels()) - double(evidence.size());
   rep.counts["volume_bytes"] = double(volume.memory_bytes());
-  const Mesh surface = volume.surface_mesh(evidence);
+  size_t depth_faces = 0;
+  const Mesh surface = volume.surface_mesh(evidence, &depth_faces);
   rep.counts["surface_triangles"] = double(surface.faces.size());
   // Written in a task of its own while the cameras' depth is made.
   std::future<Status> surface_written = std::async(std::launch::async, [&]() -> Status {
@@ -886,7 +907,12 @@ Result<ReconstructSummary> run_reconstruct_job(const ReconstructJob& job) {
   }
 
   if (job.fit_seconds > 0) {
-    if (auto st = fit_step(job, in->s, *views, volume, w0, plate ? &*plate : nullptr, model, sum); !st)
+    Mesh depth_surface;
+    if (job.fit_depth_weight > 0) {
+      depth_surface.vertices = surface.vertices;
+      depth_surface.faces.assign(surface.faces.begin(), surface.faces.begin() + std::ptrdiff_t(depth_faces));
+    }
+    if (auto st = fit_step(job, in->s, *views, volume, w0, plate ? &*plate : nullptr, depth_surface, model, sum); !st)
       return std::unexpected(st.error());
     timer.lap("fit");
   }

@@ -62,6 +62,7 @@ struct ReconstructJob {
   int fit_sh_degree = 1;              // view-dependent colour: 0 (none) .. 2
   bool fit_random_background = false;  // views with a matte: fit on random colours under it (SplatFitOptions)
   double fit_ssim_weight = 0;          // the fit's loss: (1 - w) squared error + w (1 - SSIM) (SplatFitOptions)
+  double fit_depth_weight = 0;         // the fit's depth term where the capture has depth (SplatFitOptions::depth_weight)
   std::vector<double> fit_snapshots;  // seconds: also write splats_<s>s.bin at these (error against run time)
   int threads = 0;
 

@@ -107,6 +107,7 @@ SplatFrame fit_detail::project(const std::vector<Splat>& splats, int coeffs, con
       p.r2max = r * r;
       p.o = o;
       p.pc = pc;
+      p.dist = pc.norm();
       p.id = uint32_t(i);
       p.clamped = 0;
       sh_basis((X - eye).normalized(), coeffs, basis);
@@ -208,15 +209,36 @@ void for_tiles(const SplatFrame& f, int threads, const std::function<void(int, i
 namespace fit_detail {
 
 double forward_backward(const SplatFrame& f, const ImageU8& target, const Behind& bg, float scale, int threads,
-                        std::vector<std::vector<Grad>>* grads_out, float ssim_weight, int lanes) {
+                        std::vector<std::vector<Grad>>* grads_out, float ssim_weight, int lanes, float depth_scale,
+                        double* depth_sq, double* depth_px) {
   const int workers = std::max(1, std::min(worker_count(threads), f.tiles_x * f.tiles_y));
   if (grads_out) {
     grads_out->resize(size_t(workers));
     for (auto& g : *grads_out) g.assign(f.p.size(), Grad{});
   }
-  std::vector<double> err(size_t(workers), 0.0);
+  std::vector<double> err(size_t(workers), 0.0), derr(size_t(workers), 0.0), dpx(size_t(workers), 0.0);
   const int ch = target.channels;
   constexpr int kPixels = kTile * kTile;
+  // The depth channel's derivative (its plane of dC) where the pixel has a
+  // depth, zero elsewhere; its squared error and pixels summed.
+  auto depth_error = [&](const TileState& st, float* dC, int wk) {
+    if (!bg.depth) return;
+    double e = 0, n = 0;
+    std::fill(dC + 3 * kPixels, dC + 4 * kPixels, 0.f);
+    for (int y = 0; y < st.h; ++y)
+      for (int x = 0; x < st.w; ++x) {
+        const float d = bg.depth_at(st.x0 + x, st.y0 + y);
+        if (!(d > 0)) continue;
+        const float diff = st.C[3][y * kTile + x] - d;
+        e += double(diff) * diff, n += 1;
+        dC[3 * kPixels + y * kTile + x] = 2.f * scale * depth_scale * diff;
+      }
+    derr[size_t(wk)] += e, dpx[size_t(wk)] += n;
+  };
+  auto depth_totals = [&] {
+    if (depth_sq) *depth_sq += std::accumulate(derr.begin(), derr.end(), 0.0);
+    if (depth_px) *depth_px += std::accumulate(dpx.begin(), dpx.end(), 0.0);
+  };
   // The squared error's derivative by each pixel's colour, and the error.
   auto squared_error = [&](const TileState& st, float* dC) {
     double e = 0;
@@ -256,7 +278,8 @@ double forward_backward(const SplatFrame& f, const ImageU8& target, const Behind
     ssim_and_gradient(drawn, photo, &dssim);
     for_tiles(f, threads, [&](int tile, int wk) {
       TileState& st = states[size_t(tile)];
-      alignas(32) float dC[3 * kPixels] = {};
+      alignas(32) float dC[4 * kPixels] = {};
+      depth_error(st, dC, wk);
       for (int y = 0; y < st.h; ++y)
         for (int x = 0; x < st.w; ++x) {
           const size_t k0 = (size_t(st.y0 + y) * f.width + st.x0 + x) * 3;
@@ -266,15 +289,18 @@ double forward_backward(const SplatFrame& f, const ImageU8& target, const Behind
         }
       tile_backward(f, tile, bg, st, dC, (*grads_out)[size_t(wk)].data(), lanes);
     });
+    depth_totals();
     return std::accumulate(err.begin(), err.end(), 0.0);
   }
   for_tiles(f, threads, [&](int tile, int wk) {
     TileState st;
     tile_forward(f, tile, bg, st, lanes);
-    alignas(32) float dC[3 * kPixels];
+    alignas(32) float dC[4 * kPixels];
     err[size_t(wk)] += squared_error(st, dC);
+    depth_error(st, dC, wk);
     if (grads_out) tile_backward(f, tile, bg, st, dC, (*grads_out)[size_t(wk)].data(), lanes);
   });
+  depth_totals();
   return std::accumulate(err.begin(), err.end(), 0.0);
 }
 
@@ -299,6 +325,30 @@ ImageU8 downscale(const ImageU8& im, int s) {
           for (int dx = 0; dx < s; ++dx) sum += im.at(x * s + dx, y * s + dy, std::min(c, im.channels - 1));
         out.at(x, y, c) = uint8_t((sum + s * s / 2) / (s * s));
       }
+  return out;
+}
+
+// A depth image box-filtered by s: a block's mean where every pixel of it
+// has a depth, else 0 (none: a block across the silhouette mixes the
+// object's distance with what lies behind it).
+ImageF downscale_depth(const ImageF& im, int s) {
+  if (s == 1) return im;
+  ImageF out(im.width / s, im.height / s, 1);
+  for (int y = 0; y < out.height; ++y)
+    for (int x = 0; x < out.width; ++x) {
+      float sum = 0;
+      bool whole = true;
+      for (int dy = 0; dy < s && whole; ++dy)
+        for (int dx = 0; dx < s; ++dx) {
+          const float d = im.at(x * s + dx, y * s + dy);
+          if (!(d > 0)) {
+            whole = false;
+            break;
+          }
+          sum += d;
+        }
+      out.at(x, y) = whole ? sum / float(s * s) : 0.f;
+    }
   return out;
 }
 
@@ -454,6 +504,7 @@ Status SplatFitOptions::validate() const {
   if (!(lr_final > 0 && lr_final <= 1)) return fail(ErrorCode::invalid, "fit: lr_final: must be in (0, 1]");
   if (coarse_levels < 0 || coarse_levels > 4) return fail(ErrorCode::invalid, "fit: coarse_levels: must be in 0..4");
   if (!(ssim_weight >= 0 && ssim_weight < 1)) return fail(ErrorCode::invalid, "fit: ssim_weight: must be in [0, 1)");
+  if (!(depth_weight >= 0) || !std::isfinite(depth_weight)) return fail(ErrorCode::invalid, "fit: depth_weight: must be >= 0 and finite");
   for (float b : background)
     if (!(b >= 0 && b <= 1)) return fail(ErrorCode::invalid, "fit: background: each channel must be in [0, 1]");
   return {};
@@ -500,6 +551,9 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
   for (const auto& v : views)
     if (v.matte && (v.matte->width != v.photo->width || v.matte->height != v.photo->height || v.matte->channels != 1))
       return fail(ErrorCode::invalid, "fit: a matte's size differs from its photo's (or it is not one channel)");
+  for (const auto& v : views)
+    if (v.depth && (v.depth->width != v.photo->width || v.depth->height != v.photo->height || v.depth->channels != 1))
+      return fail(ErrorCode::invalid, "fit: a depth image's size differs from its photo's (or it is not one channel)");
   using clock = std::chrono::steady_clock;
   const auto t0 = clock::now();
   auto elapsed = [&] { return std::chrono::duration<double>(clock::now() - t0).count(); };
@@ -521,12 +575,28 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
   std::map<std::pair<const ImageU8*, int>, ImageU8> plates;
   for (const auto& vw : views)
     if (vw.backdrop) plates.try_emplace({vw.backdrop, 1}, *vw.backdrop);
+  // The views' depth at each scale (a pixel's mean over its block where the
+  // whole block has a depth, else none).
+  const bool fit_depth = o.depth_weight > 0 && std::any_of(views.begin(), views.end(), [](const SplatView& v) { return v.depth; });
+  std::map<int, std::vector<ImageF>> depth_pyramid;
+  auto depth_level = [&](size_t i, int s) -> const ImageF* {
+    if (!fit_depth || !views[i].depth) return nullptr;
+    auto it = depth_pyramid.find(s);
+    if (it == depth_pyramid.end()) {
+      std::vector<ImageF> l(views.size());
+      parallel_for(int(views.size()), o.threads, [&](int k) {
+        if (views[size_t(k)].depth) l[size_t(k)] = downscale_depth(*views[size_t(k)].depth, s);
+      });
+      it = depth_pyramid.emplace(s, std::move(l)).first;
+    }
+    return &it->second[i];
+  };
   auto behind = [&](size_t i, int s) -> Behind {
     const ImageU8* b = views[i].backdrop;
-    if (!b) return Behind{o.background.data()};
+    if (!b) return Behind{o.background.data(), nullptr, depth_level(i, s)};
     auto it = plates.find({b, s});
     if (it == plates.end()) it = plates.emplace(std::pair{b, s}, downscale(*b, s)).first;
-    return Behind{o.background.data(), &it->second};
+    return Behind{o.background.data(), &it->second, depth_level(i, s)};
   };
   // Random backgrounds: the mattes at each scale, and a step's photo moved
   // onto colour r under its matte (into `moved`).
@@ -554,7 +624,7 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
       for (size_t c = 0; c < 3; ++c)
         moved.data[p * 3 + c] = uint8_t(std::clamp(std::lround(float(photo.data[p * size_t(photo.channels) + c]) + shift[c] * open), 0L, 255L));
     }
-    return {&moved, Behind{colour.data()}};
+    return {&moved, Behind{colour.data(), nullptr, depth_level(i, s)}};
   };
   // Stages, coarse to fine: the grid starts 2^coarse_levels times coarser
   // than the facets given (their cells merged), each stage ends by halving
@@ -562,6 +632,7 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
   // the scale where its voxel spans about 1.5 pixels or more, the second
   // half of the stage at twice that resolution.
   const float w_in = splats.front().voxel;
+  const float depth_scale = fit_depth ? float(o.depth_weight) / (w_in * w_in) : 0.f;
   if (o.coarse_levels > 0) splats = merge_cells(splats, o.coarse_levels, o);
   Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
   for (const Splat& p : splats) centroid += p.anchor.cast<double>();
@@ -610,7 +681,7 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
   {
     const int s0 = stages[0].scale_first;
     const auto& photos = level(s0);
-    double sq = 0, px = 0;
+    double sq = 0, px = 0, dsq = 0, dpx = 0;
     const size_t step_views = std::max<size_t>(1, views.size() / 8);  // eight views, evenly spaced
     std::mt19937 gen(11);
     for (size_t i = 0; i < views.size(); i += step_views) {
@@ -619,10 +690,11 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
       ImageU8 moved;
       const auto [target, bg] = step_target(i, s0, photos[i], gen, colour, moved);
       sq += forward_backward(project(splats, coeffs, K, views[i].world_from_camera, o.threads), *target, bg, 1.f,
-                             o.threads, nullptr);
+                             o.threads, nullptr, 0, 0, 0, &dsq, &dpx);
       px += 3.0 * K.width * K.height;
     }
     initial_psnr = 10 * std::log10(1.0 / std::max(sq / px, 1e-12));
+    sum.initial_depth_rms_m = dpx > 0 ? std::sqrt(dsq / dpx) : 0;
     sum.seconds_initial = elapsed();
     sum.initial_psnr_db = initial_psnr;
   }
@@ -666,7 +738,7 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
       const int scale = std::max(frac_epochs, frac_time) < 0.5 ? st.scale_first : st.scale_second;
       const auto& photos = level(scale);
       std::shuffle(order.begin(), order.end(), rng);
-      double sq = 0, px = 0;
+      double sq = 0, px = 0, dsq = 0, dpx = 0;
       int done = 0;
       for (int vi : order) {
         const double t = elapsed();
@@ -684,7 +756,7 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
         const SplatFrame f = project(splats, coeffs, K, view.world_from_camera, o.threads);
         const double t_b = elapsed();
         const float inv = 1.f / float(3.0 * K.width * K.height);
-        sq += forward_backward(f, *target, bg, inv, o.threads, &grads, float(o.ssim_weight));
+        sq += forward_backward(f, *target, bg, inv, o.threads, &grads, float(o.ssim_weight), 0, depth_scale, &dsq, &dpx);
         const double t_c = elapsed();
         sum.seconds_project += t_b - t_a;
         sum.seconds_raster += t_c - t_b;
@@ -703,7 +775,7 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
             for (const auto& tg : grads) {
               const Grad& q = tg[i];
               for (int c = 0; c < 3; ++c) gr.c[c] += q.c[c];
-              gr.o += q.o, gr.sigma += q.sigma, gr.u += q.u, gr.v += q.v, gr.weight += q.weight;
+              gr.o += q.o, gr.sigma += q.sigma, gr.u += q.u, gr.v += q.v, gr.weight += q.weight, gr.dist += q.dist;
             }
             if (gr.weight <= 0) continue;
             const Projected& pr = f.p[i];
@@ -714,7 +786,7 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
             const float dz = -(gr.u * float(K.fx) * pr.pc.x() + gr.v * float(K.fy) * pr.pc.y()) / (z * z) -
                              gr.sigma * pr.sigma / z;
             const Eigen::Vector3f dcam(gr.u * float(K.fx) / z, gr.v * float(K.fy) / z, dz);
-            const Eigen::Vector3f dworld = R * dcam;
+            const Eigen::Vector3f dworld = R * (dcam + pr.pc * (gr.dist / pr.dist));
             g[0] = dworld.x(), g[1] = dworld.y(), g[2] = dworld.z();
             g[3] = gr.sigma * pr.sigma;
             g[4] = gr.o * pr.o * (1.f - pr.o);
@@ -746,7 +818,10 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
       const double mse = sq / std::max(1.0, px);
       const double psnr = 10 * std::log10(1.0 / std::max(mse, 1e-12));
       sum.curve.push_back({elapsed(), epoch, scale, psnr, splats.size()});
-      if (scale == 1 || sum.train_psnr_db == 0) sum.train_psnr_db = psnr;
+      if (scale == 1 || sum.train_psnr_db == 0) {
+        sum.train_psnr_db = psnr;
+        if (dpx > 0) sum.depth_rms_m = std::sqrt(dsq / dpx);
+      }
       if (const std::string bad = guard.observe(epoch, scale, psnr); !bad.empty()) return fail(ErrorCode::invalid, bad);
     }
   }

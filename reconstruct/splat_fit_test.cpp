@@ -267,15 +267,26 @@ std::vector<fit_detail::Grad> summed(const std::vector<std::vector<fit_detail::G
     for (size_t i = 0; i < part.size(); ++i) {
       for (int c = 0; c < 3; ++c) out[i].c[c] += part[i].c[c];
       out[i].o += part[i].o, out[i].sigma += part[i].sigma, out[i].u += part[i].u, out[i].v += part[i].v;
-      out[i].weight += part[i].weight;
+      out[i].weight += part[i].weight, out[i].dist += part[i].dist;
     }
   return out;
 }
 
+// A depth target for those checks: the camera's distance to a plane a
+// little off the sphere's front, tilted, with a hole (no depth) in one corner.
+ImageF depth_target(const Intrinsics& K) {
+  ImageF d(K.width, K.height, 1);
+  for (int y = 0; y < K.height; ++y)
+    for (int x = 0; x < K.width; ++x)
+      d.at(x, y) = x < 30 && y < 30 ? 0.f : 1.0f + 0.001f * float(x) - 0.0005f * float(y);
+  return d;
+}
+
 // The fit's rasterizer in 4 and 8 lanes is its scalar reference: the same
 // error and gradient (to float rounding: the lanes sum in another order) of
-// the squared error and of the SSIM loss, on a cloud of translucent facets
-// at a camera whose last tiles are partial.
+// the squared error and of the SSIM loss, each with and without the depth
+// channel, on a cloud of translucent facets at a camera whose last tiles
+// are partial.
 TEST(SplatRaster, EveryLaneWidthDrawsAndDifferentiatesAlike) {
   const auto cloud = translucent_cloud();
   const Intrinsics K = ragged_camera();
@@ -284,26 +295,42 @@ TEST(SplatRaster, EveryLaneWidthDrawsAndDifferentiatesAlike) {
   const auto f = fit_detail::project(cloud, 4, K, T, 1);
   ASSERT_GT(f.p.size(), 1000u);
   const float white[3] = {1, 1, 1};
-  for (float ssim : {0.f, 0.3f}) {
+  const ImageF depth = depth_target(K);
+  const std::pair<float, bool> cases[] = {{0.f, false}, {0.3f, false}, {0.f, true}, {0.3f, true}};
+  for (auto [ssim, with_depth] : cases) {
     SCOPED_TRACE(ssim);
+    SCOPED_TRACE(with_depth);
+    const fit_detail::Behind bg{white, nullptr, with_depth ? &depth : nullptr};
     std::vector<std::vector<fit_detail::Grad>> ref_parts;
-    const double ref_err = fit_detail::forward_backward(f, photo, {white}, 1.f, 1, &ref_parts, ssim, 1);
+    double ref_dsq = 0, ref_dpx = 0;
+    const double ref_err = fit_detail::forward_backward(f, photo, bg, 1.f, 1, &ref_parts, ssim, 1, 1.f, &ref_dsq, &ref_dpx);
     const auto ref = summed(ref_parts);
-    double scale_c = 0, scale_o = 0, scale_s = 0, scale_uv = 0, scale_w = 0;
+    double scale_c = 0, scale_o = 0, scale_s = 0, scale_uv = 0, scale_w = 0, scale_d = 0;
     for (const auto& g : ref) {
       for (float c : g.c) scale_c = std::max(scale_c, double(std::abs(c)));
       scale_o = std::max(scale_o, double(std::abs(g.o)));
       scale_s = std::max(scale_s, double(std::abs(g.sigma)));
       scale_uv = std::max({scale_uv, double(std::abs(g.u)), double(std::abs(g.v))});
       scale_w = std::max(scale_w, double(g.weight));
+      scale_d = std::max(scale_d, double(std::abs(g.dist)));
     }
     ASSERT_GT(scale_o, 0);
     ASSERT_GT(scale_uv, 0);
+    if (with_depth) {
+      ASSERT_GT(scale_d, 0);
+      ASSERT_GT(ref_dsq, 0);
+      EXPECT_EQ(ref_dpx, double(K.width * K.height - 30 * 30));
+    } else {
+      EXPECT_EQ(scale_d, 0);
+      EXPECT_EQ(ref_dpx, 0);
+    }
     for (int lanes : {4, 8}) {
       SCOPED_TRACE(lanes);
       std::vector<std::vector<fit_detail::Grad>> parts;
-      const double err = fit_detail::forward_backward(f, photo, {white}, 1.f, 1, &parts, ssim, lanes);
+      double dsq = 0, dpx = 0;
+      const double err = fit_detail::forward_backward(f, photo, bg, 1.f, 1, &parts, ssim, lanes, 1.f, &dsq, &dpx);
       EXPECT_NEAR(err, ref_err, 1e-5 * ref_err);
+      EXPECT_NEAR(dsq, ref_dsq, 1e-5 * ref_dsq);
       const auto g = summed(parts);
       double worst = 0;
       for (size_t i = 0; i < g.size(); ++i) {
@@ -313,6 +340,7 @@ TEST(SplatRaster, EveryLaneWidthDrawsAndDifferentiatesAlike) {
         worst = std::max(worst, std::abs(g[i].u - ref[i].u) / scale_uv);
         worst = std::max(worst, std::abs(g[i].v - ref[i].v) / scale_uv);
         worst = std::max(worst, std::abs(g[i].weight - ref[i].weight) / scale_w);
+        if (with_depth) worst = std::max(worst, std::abs(g[i].dist - ref[i].dist) / scale_d);
       }
       EXPECT_LT(worst, 1e-4);
     }
@@ -325,21 +353,32 @@ TEST(SplatRaster, EveryLaneWidthDrawsAndDifferentiatesAlike) {
 // heaviest facets. The error is not smooth everywhere: a pixel whose alpha
 // crosses 1/255 or the 3-sigma cut adds a step that the gradient leaves out
 // (as 3D Gaussian Splatting's does), so the facets checked are those whose
-// pixels all stay clear of both circles under the steps taken.
+// pixels all stay clear of both circles under the steps taken. With the
+// depth channel as well: the loss then adds the squared depth error, and
+// the facet's distance from the camera has its own derivative.
 TEST(SplatRaster, GradientMatchesFiniteDifferences) {
+  for (bool with_depth : {false, true}) {
+  SCOPED_TRACE(with_depth);
   const auto cloud = translucent_cloud();
   const Intrinsics K = ragged_camera();
   const Eigen::Isometry3d T = ring_camera(-40, 20, 1.2);
   const ImageU8 photo = to_u8(render_splats(truth_sphere(), 1, K, T, {0, 0, 0}));
   auto f = fit_detail::project(cloud, 4, K, T, 1);
   const float black[3] = {0, 0, 0};
+  const ImageF depth = depth_target(K);
+  const fit_detail::Behind bg{black, nullptr, with_depth ? &depth : nullptr};
+  const float depth_scale = 0.5f;
   std::vector<std::vector<fit_detail::Grad>> parts;
-  fit_detail::forward_backward(f, photo, {black}, 1.f, 1, &parts);
+  fit_detail::forward_backward(f, photo, bg, 1.f, 1, &parts, 0, 0, depth_scale);
   const auto g = summed(parts);
   std::vector<size_t> order(g.size());
   std::iota(order.begin(), order.end(), size_t(0));
   std::sort(order.begin(), order.end(), [&](size_t a, size_t b) { return g[a].weight > g[b].weight; });
-  auto loss = [&] { return fit_detail::forward_backward(f, photo, {black}, 1.f, 1, nullptr); };
+  auto loss = [&] {
+    double dsq = 0;
+    const double e = fit_detail::forward_backward(f, photo, bg, 1.f, 1, nullptr, 0, 0, depth_scale, &dsq);
+    return e + depth_scale * dsq;
+  };
   // d loss / d x by central differences, x one of the facet's fields.
   auto numeric = [&](float& x, float h, const std::function<void()>& after = {}) {
     const float x0 = x;
@@ -382,9 +421,15 @@ TEST(SplatRaster, GradientMatchesFiniteDifferences) {
     EXPECT_NEAR(a.u, du, 0.02 * std::abs(du) + 2e-4);
     EXPECT_NEAR(a.v, dv, 0.02 * std::abs(dv) + 2e-4);
     EXPECT_NEAR(a.sigma, ds, 0.02 * std::abs(ds) + 2e-4);
+    if (with_depth) {
+      const double dd = numeric(p.dist, 1e-3f);
+      EXPECT_NEAR(a.dist, dd, 0.01 * std::abs(dd) + 1e-4);
+      EXPECT_GT(std::abs(dd), 1e-3);
+    }
     ++checked;
   }
   EXPECT_EQ(checked, 12);
+  }
 }
 
 // Splitting a fitted grid keeps its image: the eight children of each facet

@@ -45,20 +45,22 @@ void start_tile(const SplatFrame& f, int tile, TileState& st) {
       const int i = y * kTile + x;
       const bool inside = x < st.w && y < st.h;
       st.T[i] = 1.f;
-      st.C[0][i] = st.C[1][i] = st.C[2][i] = 0.f;
+      st.C[0][i] = st.C[1][i] = st.C[2][i] = st.C[3][i] = 0.f;
       st.done[i] = inside ? 0 : -1;
       st.end[i] = inside ? hi : lo;
     }
 }
 
 void finish_tile(const Behind& bg, TileState& st) {
+  const int channels = bg.depth ? 4 : 3;
   for (int y = 0; y < st.h; ++y)
     for (int x = 0; x < st.w; ++x)
-      for (int c = 0; c < 3; ++c) st.C[c][y * kTile + x] += st.T[y * kTile + x] * bg.at(st.x0 + x, st.y0 + y, c);
+      for (int c = 0; c < channels; ++c)
+        st.C[c][y * kTile + x] += st.T[y * kTile + x] * (c < 3 ? bg.at(st.x0 + x, st.y0 + y, c) : bg.depth_at(st.x0 + x, st.y0 + y));
 }
 
 // The scalar reference: pixel by pixel over each footprint's box.
-void forward_scalar(const SplatFrame& f, int tile, TileState& st) {
+void forward_scalar(const SplatFrame& f, int tile, TileState& st, bool depth) {
   const uint32_t lo = f.tile_start[size_t(tile)], hi = f.tile_start[size_t(tile) + 1];
   int alive = st.w * st.h;
   for (uint32_t j = lo; j < hi && alive > 0; ++j) {
@@ -82,13 +84,14 @@ void forward_scalar(const SplatFrame& f, int tile, TileState& st) {
         }
         const float w = alpha * st.T[i];
         for (int c = 0; c < 3; ++c) st.C[c][i] += w * p.c[c];
+        if (depth) st.C[3][i] += w * p.dist;
         st.T[i] = next;
       }
     }
   }
 }
 
-void backward_scalar(const SplatFrame& f, int tile, TileState& st, const float* dC, float* S, Grad* G) {
+void backward_scalar(const SplatFrame& f, int tile, TileState& st, const float* dC, float* S, Grad* G, bool depth) {
   const uint32_t lo = f.tile_start[size_t(tile)];
   int32_t last = int32_t(lo);
   for (int i = 0; i < kPixels; ++i) last = std::max(last, st.end[i]);
@@ -122,6 +125,12 @@ void backward_scalar(const SplatFrame& f, int tile, TileState& st, const float* 
           dalpha += d * (p.c[c] * Ti - S[c * kPixels + i] * inv);
           S[c * kPixels + i] += p.c[c] * w;
         }
+        if (depth) {
+          const float d = dC[3 * kPixels + i];
+          acc.dist += d * w;
+          dalpha += d * (p.dist * Ti - S[3 * kPixels + i] * inv);
+          S[3 * kPixels + i] += p.dist * w;
+        }
         acc.weight += w;
         st.T[i] = Ti;
         if (raw >= kSplatAlphaMax) continue;  // clamped: no gradient to o or the footprint
@@ -136,14 +145,14 @@ void backward_scalar(const SplatFrame& f, int tile, TileState& st, const float* 
     if (!touched) continue;
     Grad& gr = G[pi];
     for (int c = 0; c < 3; ++c) gr.c[c] += acc.c[c];
-    gr.o += acc.o, gr.sigma += acc.sigma, gr.u += acc.u, gr.v += acc.v, gr.weight += acc.weight;
+    gr.o += acc.o, gr.sigma += acc.sigma, gr.u += acc.u, gr.v += acc.v, gr.weight += acc.weight, gr.dist += acc.dist;
   }
 }
 
 // The same in N lanes: a footprint's box covers whole groups of N pixels of
 // a row, the pixels outside its cut masked (as the scalar's box test and
 // cut test do), so each pixel sees the same arithmetic in the same order.
-template <int N>
+template <int N, bool D>
 [[gnu::always_inline]] inline void forward_n(const SplatFrame& f, int tile, TileState& st) {
   using L = simd::Lanes<N>;
   using vf = typename L::f;
@@ -189,12 +198,13 @@ template <int N>
       ok &= ~fin;
       const vf aw = L::select(ok, a * Tv);
       for (int c = 0; c < 3; ++c) L::store(&st.C[c][i], L::load(&st.C[c][i]) + aw * p.c[c]);
+      if constexpr (D) L::store(&st.C[3][i], L::load(&st.C[3][i]) + aw * p.dist);
       L::store(&st.T[i], L::blend(ok, next, Tv));
     }
   }
 }
 
-template <int N>
+template <int N, bool D>
 [[gnu::always_inline]] inline void backward_n(const SplatFrame& f, int tile, TileState& st, const float* dC, float* S,
                                               Grad* G) {
   using L = simd::Lanes<N>;
@@ -217,7 +227,7 @@ template <int N>
     if (!footprint(p, st, xa, xb, ya, yb)) continue;
     const vi jv = L::all_i(j);
     const float two_k = 2.f * p.inv2s2, inv_sigma = 1.f / p.sigma;
-    vf ac0 = L::all(0.f), ac1 = ac0, ac2 = ac0, ao = ac0, as = ac0, au = ac0, av = ac0, aw = ac0;
+    vf ac0 = L::all(0.f), ac1 = ac0, ac2 = ac0, ao = ac0, as = ac0, au = ac0, av = ac0, aw = ac0, ad = ac0;
     bool touched = false;
     for (int y = ya; y <= yb; ++y) {
       const float dy = float(st.y0 + y) - p.v;
@@ -246,6 +256,12 @@ template <int N>
         L::store(&S[i], S0 + L::select(ok, p.c[0] * w));
         L::store(&S[kPixels + i], S1 + L::select(ok, p.c[1] * w));
         L::store(&S[2 * kPixels + i], S2 + L::select(ok, p.c[2] * w));
+        if constexpr (D) {
+          const vf d3 = L::load(&dC[3 * kPixels + i]), S3 = L::load(&S[3 * kPixels + i]);
+          ad += L::select(ok, d3 * w);
+          dalpha += d3 * (p.dist * Ti - S3 * inv);
+          L::store(&S[3 * kPixels + i], S3 + L::select(ok, p.dist * w));
+        }
         aw += L::select(ok, w);
         L::store(&st.T[i], L::blend(ok, Ti, Tv));
         const vi free = ok & (raw < L::all(kSplatAlphaMax));  // clamped: no gradient to o or the footprint
@@ -260,23 +276,29 @@ template <int N>
     Grad& gr = G[pi];
     gr.c[0] += L::sum(ac0), gr.c[1] += L::sum(ac1), gr.c[2] += L::sum(ac2);
     gr.o += L::sum(ao), gr.sigma += L::sum(as), gr.u += L::sum(au), gr.v += L::sum(av), gr.weight += L::sum(aw);
+    if constexpr (D) gr.dist += L::sum(ad);
   }
 }
 
-void forward_4(const SplatFrame& f, int tile, TileState& st) { forward_n<4>(f, tile, st); }
-void backward_4(const SplatFrame& f, int tile, TileState& st, const float* dC, float* S, Grad* G) {
-  backward_n<4>(f, tile, st, dC, S, G);
+// Each width with and without the depth channel.
+void forward_4(const SplatFrame& f, int tile, TileState& st, bool depth) {
+  depth ? forward_n<4, true>(f, tile, st) : forward_n<4, false>(f, tile, st);
+}
+void backward_4(const SplatFrame& f, int tile, TileState& st, const float* dC, float* S, Grad* G, bool depth) {
+  depth ? backward_n<4, true>(f, tile, st, dC, S, G) : backward_n<4, false>(f, tile, st, dC, S, G);
 }
 #if defined(__x86_64__)
-__attribute__((target("avx2"))) void forward_8(const SplatFrame& f, int tile, TileState& st) { forward_n<8>(f, tile, st); }
+__attribute__((target("avx2"))) void forward_8(const SplatFrame& f, int tile, TileState& st, bool depth) {
+  depth ? forward_n<8, true>(f, tile, st) : forward_n<8, false>(f, tile, st);
+}
 __attribute__((target("avx2"))) void backward_8(const SplatFrame& f, int tile, TileState& st, const float* dC, float* S,
-                                                Grad* G) {
-  backward_n<8>(f, tile, st, dC, S, G);
+                                                Grad* G, bool depth) {
+  depth ? backward_n<8, true>(f, tile, st, dC, S, G) : backward_n<8, false>(f, tile, st, dC, S, G);
 }
 #else
-void forward_8(const SplatFrame& f, int tile, TileState& st) { forward_n<4>(f, tile, st); }
-void backward_8(const SplatFrame& f, int tile, TileState& st, const float* dC, float* S, Grad* G) {
-  backward_n<4>(f, tile, st, dC, S, G);
+void forward_8(const SplatFrame& f, int tile, TileState& st, bool depth) { forward_4(f, tile, st, depth); }
+void backward_8(const SplatFrame& f, int tile, TileState& st, const float* dC, float* S, Grad* G, bool depth) {
+  backward_4(f, tile, st, dC, S, G, depth);
 }
 #endif
 
@@ -289,25 +311,27 @@ int widest_lanes() { return simd::has_avx2() ? 8 : 4; }
 void tile_forward(const SplatFrame& f, int tile, const Behind& bg, TileState& st, int lanes) {
   start_tile(f, tile, st);
   switch (lanes_for(lanes)) {
-    case 1: forward_scalar(f, tile, st); break;
-    case 4: forward_4(f, tile, st); break;
-    default: forward_8(f, tile, st); break;
+    case 1: forward_scalar(f, tile, st, bg.depth); break;
+    case 4: forward_4(f, tile, st, bg.depth); break;
+    default: forward_8(f, tile, st, bg.depth); break;
   }
   finish_tile(bg, st);
 }
 
 void tile_backward(const SplatFrame& f, int tile, const Behind& bg, TileState& st, const float* dC, Grad* G, int lanes) {
   // What lies behind each splat as the walk reaches it, the background first.
-  alignas(32) float S[3 * kPixels];
+  alignas(32) float S[4 * kPixels];
+  const bool depth = bg.depth;
   for (int i = 0; i < kPixels; ++i) {
     const int x = i % kTile, y = i / kTile;
     const bool inside = x < st.w && y < st.h;
     for (int c = 0; c < 3; ++c) S[c * kPixels + i] = inside ? st.T[i] * bg.at(st.x0 + x, st.y0 + y, c) : 0.f;
+    S[3 * kPixels + i] = inside && depth ? st.T[i] * bg.depth_at(st.x0 + x, st.y0 + y) : 0.f;
   }
   switch (lanes_for(lanes)) {
-    case 1: backward_scalar(f, tile, st, dC, S, G); break;
-    case 4: backward_4(f, tile, st, dC, S, G); break;
-    default: backward_8(f, tile, st, dC, S, G); break;
+    case 1: backward_scalar(f, tile, st, dC, S, G, depth); break;
+    case 4: backward_4(f, tile, st, dC, S, G, depth); break;
+    default: backward_8(f, tile, st, dC, S, G, depth); break;
   }
 }
 

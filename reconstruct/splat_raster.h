@@ -33,6 +33,7 @@ struct Projected {
   float o;            // opacity
   float c[3];         // colour
   Eigen::Vector3f pc; // camera-frame centre
+  float dist;         // |pc|: the centre's distance from the camera, the depth channel's value
   uint32_t id;        // facet index
   uint8_t clamped;    // bit per channel: the colour was clamped at 0
 };
@@ -46,18 +47,27 @@ struct SplatFrame {
 };
 
 // Per projected facet, what one thread's pixels owe it: the loss's
-// derivatives by its colour, opacity, sigma and centre, and the summed
-// compositing weight of the pixels it reached.
+// derivatives by its colour, opacity, sigma, centre (on screen, and its
+// distance from the camera where the depth channel is fitted), and the
+// summed compositing weight of the pixels it reached.
 struct Grad {
-  float c[3], o, sigma, u, v, weight;
+  float c[3], o, sigma, u, v, weight, dist;
 };
 
 // What lies behind the facets: one colour, or per pixel a plate (RGB, the
 // image's size) where the view has one.
+// With `depth` (the image's size, 1 channel), the depth channel: per pixel
+// the distance along its ray to the surface the facets should lie on (0:
+// none there). The facets composite their distance |pc| as a fourth
+// channel over that same distance behind them, so a pixel's depth error is
+// sum_i (|pc_i| - d) w_i: opacity off the surface costs, opacity the
+// colour does not ask for is not asked for.
 struct Behind {
   const float* colour;
   const ImageU8* plate = nullptr;
+  const ImageF* depth = nullptr;
   float at(int x, int y, int c) const { return plate ? float(plate->at(x, y, c)) * (1.f / 255.f) : colour[c]; }
+  float depth_at(int x, int y) const { return depth ? depth->data[size_t(y) * depth->width + x] : 0.f; }
 };
 
 // One tile as tile_forward leaves it for tile_backward. Pixel (x, y) of the
@@ -65,7 +75,7 @@ struct Behind {
 struct TileState {
   int x0 = 0, y0 = 0, w = 0, h = 0;
   alignas(32) float T[kTile * kTile];      // transmittance left
-  alignas(32) float C[3][kTile * kTile];   // colour, the background included
+  alignas(32) float C[4][kTile * kTile];   // colour, the background included; [3]: the depth channel (with bg.depth)
   alignas(32) int32_t end[kTile * kTile];  // list entries [lo, end) were composited
   alignas(32) int32_t done[kTile * kTile]; // 0, or -1 once opaque (and past the image's edge)
 };
@@ -79,7 +89,8 @@ void tile_forward(const SplatFrame& f, int tile, const Behind& bg, TileState& st
 
 // Back to front through the tile as tile_forward left it, the loss's
 // derivative by each pixel's colour in `dC` (planar, 3 x kTile^2, the
-// tile's layout), added into G (per projected facet). Consumes st.T.
+// tile's layout; with bg.depth a fourth plane, the derivative by the
+// pixel's depth channel), added into G (per projected facet). Consumes st.T.
 void tile_backward(const SplatFrame& f, int tile, const Behind& bg, TileState& st, const float* dC, Grad* G,
                    int lanes = 0);
 
@@ -92,9 +103,12 @@ SplatFrame project(const std::vector<Splat>& splats, int coeffs, const Intrinsic
 // projected facet; null: the error only), the gradient of the loss: `scale`
 // x squared error, or with `ssim_weight` w > 0, (1 - w) x that + w x (1 -
 // SSIM) (the mean of the SSIM map, core/image_metrics.h; all tiles
-// composited first, the map needing each pixel's neighbours). `lanes` as
-// tile_forward's.
+// composited first, the map needing each pixel's neighbours). With
+// bg.depth, plus `depth_scale` x the squared depth error where the pixel has
+// a depth (its sum added into `depth_sq`, the pixels counted into
+// `depth_px`). `lanes` as tile_forward's.
 double forward_backward(const SplatFrame& f, const ImageU8& target, const Behind& bg, float scale, int threads,
-                        std::vector<std::vector<Grad>>* grads_out, float ssim_weight = 0, int lanes = 0);
+                        std::vector<std::vector<Grad>>* grads_out, float ssim_weight = 0, int lanes = 0,
+                        float depth_scale = 0, double* depth_sq = nullptr, double* depth_px = nullptr);
 
 }  // namespace s2r::fit_detail
