@@ -113,11 +113,16 @@ void add_selection(Report& rep, const DrawStats& st, const std::string& suffix) 
   rep.counts["frame_ms" + suffix] = st.frame_ms;
   if (st.fitted_on_cpu) rep.params["fitted_pass"] = std::string("cpu");
   if (st.backdrop_own_photo) rep.counts["backdrop_from_the_cameras_own_photo" + suffix] = 1;
-  rep.counts["selection_ms" + suffix] = st.selection.seconds * 1e3;
-  rep.skipped["facets_outside_frustum" + suffix] = double(st.selection.outside_frustum);
-  rep.skipped["facets_back_facing" + suffix] = double(st.selection.back_facing);
-  rep.skipped["facets_without_camera" + suffix] = double(st.selection.no_camera);
-  rep.skipped["blending_one_exact_camera" + suffix] = double(st.selection.exact_camera);
+  // The image-based billboards' selection, where it ran (the fitted pass
+  // and a mesh alone select none: their frames list no such counters).
+  const SelectionStats& se = st.selection;
+  if (se.seconds > 0 || se.outside_frustum + se.back_facing + se.no_camera > 0) {
+    rep.counts["selection_ms" + suffix] = se.seconds * 1e3;
+    rep.skipped["facets_outside_frustum" + suffix] = double(se.outside_frustum);
+    rep.skipped["facets_back_facing" + suffix] = double(se.back_facing);
+    rep.skipped["facets_without_camera" + suffix] = double(se.no_camera);
+    rep.skipped["blending_one_exact_camera" + suffix] = double(se.exact_camera);
+  }
   if (st.selection.cameras_pruned) rep.skipped["blended_cameras_below_min_weight" + suffix] = double(st.selection.cameras_pruned);
   if (st.triangles) rep.counts["mesh_triangles" + suffix] = double(st.triangles);
   if (st.facets_on_mesh) rep.skipped["billboards_left_to_the_reliable_mesh" + suffix] = double(st.facets_on_mesh);
