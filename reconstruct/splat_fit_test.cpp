@@ -740,6 +740,13 @@ TEST(SplatFit, OptionsValidate) {
   o = {};
   o.ssim_weight = 1;  // no squared error left, the one the fit reports and guards
   EXPECT_FALSE(o.validate());
+  o = {};
+  o.depth_weight = -0.01;
+  EXPECT_FALSE(o.validate());
+  o.depth_weight = std::nan("");
+  EXPECT_FALSE(o.validate());
+  o.depth_weight = 0.01;
+  EXPECT_TRUE(o.validate());
   std::vector<Splat> none;
   EXPECT_FALSE(fit_splats(none, {}, SplatFitOptions{}));
 }
