@@ -332,7 +332,6 @@ ImageU8 downscale(const ImageU8& im, int s) {
 // has a depth, else 0 (none: a block across the silhouette mixes the
 // object's distance with what lies behind it).
 ImageF downscale_depth(const ImageF& im, int s) {
-  if (s == 1) return im;
   ImageF out(im.width / s, im.height / s, 1);
   for (int y = 0; y < out.height; ++y)
     for (int x = 0; x < out.width; ++x) {
@@ -581,6 +580,7 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
   std::map<int, std::vector<ImageF>> depth_pyramid;
   auto depth_level = [&](size_t i, int s) -> const ImageF* {
     if (!fit_depth || !views[i].depth) return nullptr;
+    if (s == 1) return views[i].depth;  // the caller's own, not a copy
     auto it = depth_pyramid.find(s);
     if (it == depth_pyramid.end()) {
       std::vector<ImageF> l(views.size());
