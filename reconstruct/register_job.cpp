@@ -97,9 +97,41 @@ std::optional<std::vector<Eigen::Isometry3d>> reference_poses(const RegisterJob&
   return std::nullopt;
 }
 
+}  // namespace
+
+TableAgreement table_agreement(const std::vector<Eigen::Isometry3d>& poses, const std::vector<Eigen::Isometry3d>& table,
+                               const Eigen::Vector3d& axis) {
+  TableAgreement a;
+  const Eigen::Vector3d d = axis.normalized();
+  double sum = 0;
+  for (size_t i = 0; i < poses.size() && i < table.size(); ++i) {
+    // The world-frame rotation from the table's pose to the registered one,
+    // split into a twist about the axis and the swing left (the tilt).
+    Eigen::Quaterniond q(poses[i].linear() * table[i].linear().transpose());
+    q.normalize();
+    if (q.w() < 0) q.coeffs() = -q.coeffs();
+    const double along = q.vec().dot(d);
+    const double turn = 2 * std::atan2(along, q.w());
+    const Eigen::Quaterniond twist(Eigen::AngleAxisd(turn, d));
+    const Eigen::Quaterniond swing = q * twist.conjugate();
+    const double tilt = 2 * std::atan2(swing.vec().norm(), std::abs(swing.w()));
+    const double turn_deg = turn * 180 / M_PI, tilt_deg = tilt * 180 / M_PI;
+    a.turn_deg.push_back(turn_deg);
+    a.tilt_deg.push_back(tilt_deg);
+    a.max_turn_deg = std::max(a.max_turn_deg, std::abs(turn_deg));
+    a.max_tilt_deg = std::max(a.max_tilt_deg, tilt_deg);
+    sum += turn_deg * turn_deg;
+  }
+  if (!a.turn_deg.empty()) a.rms_turn_deg = std::sqrt(sum / double(a.turn_deg.size()));
+  return a;
+}
+
+namespace {
+
 // poses.json, the .conf of Stanford input, and the per-view and per-pair tables.
 Status write_results(const RegisterJob& job, const LoadedViews& lv, const std::vector<RegistrationView>& views,
-                     const RegistrationResult& r, const std::optional<PoseError>& view_error, Report& report) {
+                     const RegistrationResult& r, const std::optional<PoseError>& view_error,
+                     const std::optional<TableAgreement>& table, Report& report) {
   std::error_code ec;
   fs::create_directories(job.out, ec);
   if (ec) return fail("cannot create '" + job.out.string() + "': " + ec.message());
@@ -125,12 +157,14 @@ Status write_results(const RegisterJob& job, const LoadedViews& lv, const std::v
   }
   SweepTable vt;
   vt.columns = {"view", "rms_mm", "overlap", "pairs", "flagged", "flipped", "rot_err_deg", "trans_err_mm"};
+  if (table) vt.columns.insert(vt.columns.end(), {"turn_from_table_deg", "tilt_from_table_deg"});
   for (size_t i = 0; i < views.size(); ++i) {
     const auto& v = r.views[i];
     vt.row_labels.push_back(views[i].name);
     vt.rows.push_back({double(i), 1e3 * v.rms_m, v.overlap, double(v.pairs), double(v.flagged), double(v.flipped),
                        view_error ? view_error->rotation_deg[i] : -1,
                        view_error ? 1e3 * view_error->translation_m[i] : -1});
+    if (table) vt.rows.back().insert(vt.rows.back().end(), {table->turn_deg[i], table->tilt_deg[i]});
   }
   if (auto st = vt.write_csv(job.out / "views.csv"); !st) return st;
   SweepTable pt;
@@ -199,6 +233,19 @@ Result<RegisterSummary> run_register_job(const RegisterJob& job) {
   sum.points_in = in.prep.input, sum.points_kept = in.prep.kept;
   sum.rms_m = r->rms_m, sum.iterations = r->iterations, sum.rounds = r->rounds;
   sum.register_seconds = r->seconds;
+  // A calibrated turntable gives every view a table angle of its own (the
+  // markers' or the reported steps'): how far the registration moved each
+  // view from it, as a turn about the axis and a tilt off it. Two
+  // measurements that agree (the dots and the depth) leave little doubt
+  // about a held-out view's pose; a large turn is a slide about the axis
+  // (a round object) or a wrong table angle.
+  if (in.turntable && !job.perturb_deg && !job.perturb_m) {
+    const TableAgreement a = table_agreement(r->poses, in.given, in.turntable->direction);
+    report.errors["max_turn_from_table_deg"] = a.max_turn_deg;
+    report.errors["rms_turn_from_table_deg"] = a.rms_turn_deg;
+    report.errors["max_tilt_from_table_deg"] = a.max_tilt_deg;
+    sum.table = a;
+  }
   std::optional<PoseError> view_error;
   if (reference) {
     const PoseError e0 = pose_error(start, *reference, centre, o.fixed_view);
@@ -210,7 +257,7 @@ Result<RegisterSummary> run_register_job(const RegisterJob& job) {
     report.errors["max_translation_m"] = e.max_translation_m;
     view_error = e;
   }
-  if (auto st = write_results(job, *lv, views, *r, view_error, report); !st) return std::unexpected(st.error());
+  if (auto st = write_results(job, *lv, views, *r, view_error, sum.table, report); !st) return std::unexpected(st.error());
   if (auto st = table.write_csv(job.out / "convergence.csv"); !st) return std::unexpected(st.error());
   PlotSpec spec{"registration: error against run time", "seconds", "RMS point-to-plane (mm) / pose error",
                 "seconds", {"rms_mm"}};

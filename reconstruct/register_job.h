@@ -32,12 +32,23 @@ struct RegisterJob {
 
 // What run_register_job measured, typed (Ceres' Solver::Summary the model);
 // report.json is to_report().
+// How far registered poses lie from a turntable's own (its table angles
+// about the calibrated axis), per view: the turn about the axis (signed,
+// right-handed) and the tilt off it, degrees.
+struct TableAgreement {
+  std::vector<double> turn_deg, tilt_deg;
+  double max_turn_deg = 0, rms_turn_deg = 0, max_tilt_deg = 0;
+};
+TableAgreement table_agreement(const std::vector<Eigen::Isometry3d>& poses, const std::vector<Eigen::Isometry3d>& table,
+                               const Eigen::Vector3d& axis);
+
 struct RegisterSummary {
   RegistrationMode mode = RegistrationMode::kFree;
   std::string fixed_view;                    // the view held fixed
   size_t views = 0, points_in = 0, points_kept = 0;
   double rms_m = 0;                          // point-to-plane over every overlapping pair
   int iterations = 0, rounds = 0;
+  std::optional<TableAgreement> table;       // against the turntable's angles, when calibrated and not perturbed
   std::optional<PoseError> start_error, error;  // against the reference (the rig's truth or the unperturbed input)
   double seconds = 0, register_seconds = 0;  // the job, the solve alone
   Report report;

@@ -13,6 +13,7 @@
 
 #include "core/camera_model.h"
 #include "core/progress.h"
+#include "reconstruct/register_job.h"
 #include "reconstruct/registration.h"
 #include "reconstruct/registration_costs.h"
 
@@ -250,4 +251,33 @@ TEST(Registration, ViewsThatDoNotOverlapAreFlagged) {
   EXPECT_TRUE(r->views[2].flagged);
   EXPECT_NE(r->views[2].note.find("overlap"), std::string::npos);
   EXPECT_FALSE(r->views[1].flagged);
+}
+
+// The registered poses against the turntable's own: a known turn about a
+// tilted axis and a known tilt off it come back as they were made, with the
+// turn's sign (right-handed about the axis) and wherever the view sits.
+TEST(Registration, TurnAndTiltFromTheTableAreSeparated) {
+  const Vector3d axis = Vector3d(0.05, -0.84, -0.53).normalized();
+  const Vector3d off = axis.unitOrthogonal();
+  std::vector<Eigen::Isometry3d> table, registered;
+  const double turns[] = {0, 1.2, -0.7, 0.3}, tilts[] = {0, 0, 0.2, 0.05};
+  for (int i = 0; i < 4; ++i) {
+    Eigen::Isometry3d t = Eigen::Isometry3d::Identity();
+    t.linear() = Eigen::AngleAxisd(kPi / 2 * i, axis).toRotationMatrix();
+    t.translation() = Vector3d(0.01 * i, 0.3, -0.02);
+    table.push_back(t);
+    Eigen::Isometry3d r = t;
+    r.linear() = (Eigen::AngleAxisd(tilts[i] * kPi / 180, off) * Eigen::AngleAxisd(turns[i] * kPi / 180, axis)).toRotationMatrix() *
+                 t.linear();
+    registered.push_back(r);
+  }
+  const TableAgreement a = table_agreement(registered, table, -2 * axis);  // the axis' length and sign as given
+  ASSERT_EQ(a.turn_deg.size(), 4u);
+  for (int i = 0; i < 4; ++i) {
+    EXPECT_NEAR(-a.turn_deg[size_t(i)], turns[i], 1e-3) << i;  // the axis was given reversed
+    EXPECT_NEAR(a.tilt_deg[size_t(i)], tilts[i], 1e-3) << i;
+  }
+  EXPECT_NEAR(a.max_turn_deg, 1.2, 1e-3);
+  EXPECT_NEAR(a.max_tilt_deg, 0.2, 1e-3);
+  EXPECT_NEAR(a.rms_turn_deg, std::sqrt((1.44 + 0.49 + 0.09) / 4), 1e-3);
 }
