@@ -142,7 +142,7 @@ struct BenchArgs {
   int repeats = 3, size = 512, voxels = 10000;
   int lego_views = 100;  // views: how many of lego's 100 val views (evenly spaced)
   double fit_lego = 1500, fit_others = 300;  // views: seconds of the fit (0: none)
-  double fit_ssim = 0;                       // views: the fits' SSIM weight (reconstruct --fit-ssim)
+  double fit_ssim = 0.2;                     // views: the fits' SSIM weight (reconstruct --fit-ssim, same default)
   std::vector<std::string> scenes;           // views: the scenes to run (empty: all)
 };
 struct SummaryArgs {
