@@ -30,8 +30,6 @@ struct RegisterJob {
   Status validate() const;
 };
 
-// What run_register_job measured, typed (Ceres' Solver::Summary the model);
-// report.json is to_report().
 // How far registered poses lie from a turntable's own (its table angles
 // about the calibrated axis), per view: the turn about the axis (signed,
 // right-handed) and the tilt off it, degrees.
@@ -42,6 +40,8 @@ struct TableAgreement {
 TableAgreement table_agreement(const std::vector<Eigen::Isometry3d>& poses, const std::vector<Eigen::Isometry3d>& table,
                                const Eigen::Vector3d& axis);
 
+// What run_register_job measured, typed (Ceres' Solver::Summary the model);
+// report.json is to_report().
 struct RegisterSummary {
   RegistrationMode mode = RegistrationMode::kFree;
   std::string fixed_view;                    // the view held fixed
