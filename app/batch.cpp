@@ -26,6 +26,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "calibrate/calibration.h"
 #include "capture/ground_truth.h"
 #include "capture/session.h"
 #include "app/html.h"
@@ -263,11 +264,19 @@ Result<std::vector<int>> holdout_frames(const std::string& spec, int frames) {
 Result<CaptureState> capture_state(const Capture& c, const fs::path& dir) {
   CaptureState s;
   s.session = c.kind == "session" ? c.path : dir / "session";
+  s.calibrated = exists_file(dir / "calibrate" / "calibration.json");
+  s.registered = exists_file(dir / "register" / "poses.json");
   if (exists_file(s.session / "session.json")) {
     SessionLoadOptions lo;
     lo.check_images = false;
     auto sess = load_session(s.session, lo);
     if (!sess) return fail_with_context(sess.error(), "session");
+    if (s.calibrated) {
+      // A calibration that does not load is the calibrate step's to redo
+      // (its outputs do not validate); here it only gives no table poses.
+      auto cal = load_calibration(dir / "calibrate" / "calibration.json");
+      s.table_poses = cal && cal->has_measured_angles(*sess);
+    }
     s.frames = static_cast<int>(sess->frames.size());
     s.has_depth = sess->depth.has_value();
     s.has_poses = !sess->frames.empty();
@@ -284,8 +293,6 @@ Result<CaptureState> capture_state(const Capture& c, const fs::path& dir) {
     s.heldout = dir / "heldout";
     s.heldout_frames = static_cast<int>(held->frames.size());
   }
-  s.calibrated = exists_file(dir / "calibrate" / "calibration.json");
-  s.registered = exists_file(dir / "register" / "poses.json");
   return s;
 }
 
@@ -298,7 +305,9 @@ Result<StepPlan> plan_step(const std::string& step, const Capture& c, const fs::
     return args;
   };
   auto pose_args = [&](std::vector<std::string>& args) {
-    if (st.registered) args.insert(args.end(), {"--poses", (dir / "register" / "poses.json").string()});
+    // The table's measured angles where the calibration has them (the
+    // registration then only checks them), else the registration's poses.
+    if (st.registered && !st.table_poses) args.insert(args.end(), {"--poses", (dir / "register" / "poses.json").string()});
     if (st.calibrated) args.insert(args.end(), {"--calibration", (dir / "calibrate" / "calibration.json").string()});
   };
   const std::string session = st.session.string();

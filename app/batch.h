@@ -87,6 +87,11 @@ struct CaptureState {
   bool has_depth = false;
   int frames = 0, heldout_frames = 0;
   bool calibrated = false, registered = false;
+  // The calibration measured every frame's table angle from the session's
+  // own images (calibrate markers): the model is built on those poses and
+  // registration only checks them (on a round table its turns slide about
+  // the axis: docs/cli.md, the bench's bear row).
+  bool table_poses = false;
 };
 // `dir` is RESULTS/<capture>. The session's facts are read from its files
 // (an error when the session cannot be loaded).

@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <fstream>
 
+#include "calibrate/calibration.h"
 #include "capture/synth_rig.h"
 #include "core/progress.h"
 
@@ -163,6 +164,39 @@ TEST_F(BatchPlan, ASessionWithPosesNeedsNoImportNorCalibration) {
   auto p2 = plan_step("reconstruct", d, dir_->path / "results" / "d", *st2, o);
   ASSERT_FALSE(p2);
   EXPECT_NE(p2.error().message.find("import"), std::string::npos);
+}
+
+TEST_F(BatchPlan, TheTablesMeasuredAnglesGiveThePosesAndRegistrationOnlyChecksThem) {
+  const Capture c{"cap", dir_->path / "cap", "session"};
+  const fs::path out = dir_->path / "table" / "cap";
+  touch(out / "register" / "poses.json", "{}");
+  auto sess = load_session(c.path);
+  ASSERT_TRUE(sess);
+  Calibration cal;
+  cal.axis = TurntableAxis{};
+  cal.axis->frames_session = sess->name;
+  cal.axis->frame_angles_deg.assign(sess->frames.size(), 0.0);
+  cal.axis->frame_angles_deg.pop_back();  // another session's count first: not this one's angles
+  ASSERT_TRUE(save_calibration(out / "calibrate" / "calibration.json", cal));
+  auto uses_poses = [&](const std::string& step) {
+    auto st = capture_state(c, out);
+    EXPECT_TRUE(st);
+    auto p = plan_step(step, c, out, *st, Options{});
+    EXPECT_TRUE(p);
+    const auto& a = p->commands.at(0);
+    EXPECT_NE(std::find(a.begin(), a.end(), "--calibration"), a.end()) << step;
+    return std::find(a.begin(), a.end(), "--poses") != a.end();
+  };
+  EXPECT_FALSE(capture_state(c, out)->table_poses);
+  EXPECT_TRUE(uses_poses("reconstruct"));
+  EXPECT_TRUE(uses_poses("eval"));
+  cal.axis->frame_angles_deg.push_back(0.0);
+  ASSERT_TRUE(save_calibration(out / "calibrate" / "calibration.json", cal));
+  EXPECT_TRUE(capture_state(c, out)->table_poses);
+  for (const char* step : {"reconstruct", "eval", "export"}) EXPECT_FALSE(uses_poses(step)) << step;
+  // A calibration that does not parse gives no table poses (the calibrate step redoes it).
+  touch(out / "calibrate" / "calibration.json", "{\"trunc");
+  EXPECT_TRUE(uses_poses("reconstruct"));
 }
 
 TEST_F(BatchPlan, AStepIsSkippedOnlyWithItsRecordItsCommandAndValidOutputs) {
