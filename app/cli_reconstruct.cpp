@@ -118,6 +118,11 @@ void add_reconstruct(CLI::App& app, Chosen& chosen) {
                   "the seconds: the same model on a slower or busier machine (give --fit ample seconds); 0: seconds only")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
+  sub->add_option("--fit-max-facets", job.fit_max_facets,
+                  "the fit's refinement splits the most used facets up to this many (half before its last stage); "
+                  "each costs 68 bytes in the model (--fit-sh 1) and its share of every step")
+      ->check(CLI::Range(size_t(1000), size_t(20000000)))
+      ->capture_default_str();
   sub->add_option("--fit-sh", job.fit_sh_degree, "spherical-harmonic degree of the fitted colour (0: the same from every side)")
       ->check(CLI::Range(0, 2))
       ->capture_default_str();

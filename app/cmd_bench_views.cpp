@@ -4,8 +4,9 @@
 // 17 held out), the Middlebury dino ring (frames 3, 7 and 11, each left out of
 // its own model), the RealSense bear (frame 3 held out, the poses from the
 // table's dot markers; the registration's distance from them reported).
-// Billboards and the textured patch mesh in the same run; build seconds,
-// model bytes, frame ms at the images' size.
+// Billboards, the textured patch mesh and (captures with depth) the textured
+// fused surface in the same run; build seconds, model bytes, frame ms at the
+// images' size.
 #include <algorithm>
 #include <cstdio>
 #include <map>
@@ -61,8 +62,9 @@ std::vector<int> frames_every(int count, int step) {
   return f;
 }
 
-// Reconstructs `job`, then evaluates `frames` of `eval_session` with
-// billboards and the textured patch mesh.
+// Reconstructs `job`, then evaluates `frames` of `eval_session` with the fit,
+// billboards, the textured patch mesh and the textured fused surface (where
+// the capture has depth).
 Status build_and_eval(SceneRun& run, ReconstructJob job, const FrameSource& source, const std::vector<int>& frames,
                       const fs::path& eval_out) {
   job.fit_seconds = run.fit_seconds;
@@ -82,7 +84,7 @@ Status build_and_eval(SceneRun& run, ReconstructJob job, const FrameSource& sour
   e.source = source;
   e.frames = frames;
   e.out = eval_out;
-  e.only = {"fitted", "billboards", "mesh"};
+  e.only = {"fitted", "billboards", "mesh", "surface"};
   auto ev = run_eval_job(e);
   if (!ev) return std::unexpected(with_context(ev.error(), run.scene + ": eval"));
   std::fprintf(stderr, "%s: %s\n", run.scene.c_str(), ev->brief().substr(0, 200).c_str());
@@ -280,11 +282,11 @@ int bench_views(const fs::path& out, int lego_views, double fit_lego, double fit
         rep.errors[fmt::format("full_psnr_db_{}_fitted_at_{:.0f}s", name, m)] = f->full_psnr_db;
       }
     if (auto p = pooled(*run, "fitted"); p && !run->snapshots.empty()) fit_curve.rows.push_back({run->fit_seconds, p->full_psnr, p->full_ssim});
-    for (const std::string method : {"fitted", "billboards", "mesh"}) {
+    for (const std::string method : {"fitted", "billboards", "mesh", "surface"}) {
       auto p = pooled(*run, method);
       if (!p) continue;
       t.row_labels.push_back(run->scene + " " + run->size + ": " + method);
-      // The billboards and the mesh need neither the fit's seconds nor its
+      // The billboards and the meshes need neither the fit's seconds nor its
       // file; the fitted view reads neither the camera textures nor the
       // meshes (what `reconstruct --no-textures --fit` writes, less the
       // meshes).

@@ -701,6 +701,7 @@ Status fit_step(const ReconstructJob& job, const Session& s, const std::vector<V
   o.seconds = job.fit_seconds;
   o.sh_degree = job.fit_sh_degree;
   o.max_epochs = job.fit_epochs;
+  o.max_facets = job.fit_max_facets;
   o.threads = job.threads;
   o.background = fit_background(s, views);
   o.random_background = job.fit_random_background;
@@ -760,6 +761,7 @@ Status fit_step(const ReconstructJob& job, const Session& s, const std::vector<V
                                        : fmt::format("{:.3g},{:.3g},{:.3g}", o.background[0], o.background[1], o.background[2]);
   rep.params["fit_sh_degree"] = double(job.fit_sh_degree);
   rep.params["fit_ssim_weight"] = job.fit_ssim_weight;
+  rep.params["fit_max_facets"] = double(job.fit_max_facets);
   rep.params["fit_depth_weight"] = job.fit_depth_weight;
   if (fit->initial_depth_rms_m > 0) {
     rep.errors["fit_initial_depth_rms_mm"] = fit->initial_depth_rms_m * 1e3;
@@ -780,6 +782,8 @@ Status ReconstructJob::validate() const {
   if (!(fit_ssim_weight >= 0 && fit_ssim_weight < 1)) return fail(ErrorCode::invalid, "fit_ssim_weight: must be in [0, 1)");
   if (!(fit_depth_weight >= 0) || !std::isfinite(fit_depth_weight)) return fail(ErrorCode::invalid, "fit_depth_weight: must be >= 0 and finite");
   if (fit_epochs < 0) return fail(ErrorCode::invalid, "fit_epochs: must be >= 0 (0: the seconds alone)");
+  if (fit_max_facets < 1000 || fit_max_facets > 20000000)
+    return fail(ErrorCode::invalid, "fit_max_facets: must be between 1,000 and 20,000,000");
   return {};
 }
 

@@ -212,6 +212,11 @@ TEST(ReconstructRig, StiffCases) {
   EXPECT_TRUE(bad_option.error().is(ErrorCode::invalid));
   EXPECT_EQ(bad_option.error().message.rfind("truncation_voxels:", 0), 0u) << bad_option.error().message;
   job.truncation_voxels = 4;
+  job.fit_max_facets = 10;  // under the fit's floor: the option's own error, before any work
+  bad_option = run_reconstruct_job(job);
+  ASSERT_FALSE(bad_option);
+  EXPECT_EQ(bad_option.error().message.rfind("fit_max_facets:", 0), 0u) << bad_option.error().message;
+  job.fit_max_facets = 600000;
 
   // A depth frame of another size than the depth intrinsics (the session's
   // image headers are not probed before the frames are decoded): an error
