@@ -216,7 +216,7 @@ TEST(ReconstructRig, StiffCases) {
   bad_option = run_reconstruct_job(job);
   ASSERT_FALSE(bad_option);
   EXPECT_EQ(bad_option.error().message.rfind("fit_max_facets:", 0), 0u) << bad_option.error().message;
-  job.fit_max_facets = 600000;
+  job.fit_max_facets = ReconstructJob{}.fit_max_facets;
 
   // A depth frame of another size than the depth intrinsics (the session's
   // image headers are not probed before the frames are decoded): an error
