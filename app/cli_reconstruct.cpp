@@ -123,6 +123,11 @@ void add_reconstruct(CLI::App& app, Chosen& chosen) {
                   "each costs 68 bytes in the model (--fit-sh 1) and its share of every step")
       ->check(CLI::Range(size_t(1000), size_t(20000000)))
       ->capture_default_str();
+  sub->add_option("--fit-stage-growth", job.fit_stage_growth,
+                  "the fit runs coarse to fine in stages (the grid halving at each); each stage gets this many times "
+                  "the seconds of the one before, the finest the most")
+      ->check(CLI::Range(0.25, 16.0))
+      ->capture_default_str();
   sub->add_option("--fit-sh", job.fit_sh_degree, "spherical-harmonic degree of the fitted colour (0: the same from every side)")
       ->check(CLI::Range(0, 2))
       ->capture_default_str();

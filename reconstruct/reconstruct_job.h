@@ -61,6 +61,7 @@ struct ReconstructJob {
   int fit_epochs = 0;                 // > 0: the fit also stops after this many passes over the photos
   int fit_sh_degree = 1;              // view-dependent colour: 0 (none) .. 2
   size_t fit_max_facets = SplatFitOptions{}.max_facets;  // refinement splits up to this many facets
+  double fit_stage_growth = SplatFitOptions{}.stage_time_growth;  // each stage's seconds over the one before's
   bool fit_random_background = false;  // views with a matte: fit on random colours under it (SplatFitOptions)
   // The fit's loss: (1 - w) squared error + w (1 - SSIM) (SplatFitOptions).
   // 0.2, as 3D Gaussian Splatting mixes them: chosen on lego's val split

@@ -501,6 +501,8 @@ Status SplatFitOptions::validate() const {
   for (double lr : {lr_color, lr_rest, lr_opacity, lr_sigma, lr_offset})
     if (!(lr >= 0) || !std::isfinite(lr)) return fail(ErrorCode::invalid, "fit: learning rates must be >= 0 and finite");
   if (!(lr_final > 0 && lr_final <= 1)) return fail(ErrorCode::invalid, "fit: lr_final: must be in (0, 1]");
+  if (!(stage_time_growth >= 0.25 && stage_time_growth <= 16))
+    return fail(ErrorCode::invalid, "fit: stage_time_growth: must be in [0.25, 16]");
   if (coarse_levels < 0 || coarse_levels > 4) return fail(ErrorCode::invalid, "fit: coarse_levels: must be in 0..4");
   if (!(ssim_weight >= 0 && ssim_weight < 1)) return fail(ErrorCode::invalid, "fit: ssim_weight: must be in [0, 1)");
   if (!(depth_weight >= 0) || !std::isfinite(depth_weight)) return fail(ErrorCode::invalid, "fit: depth_weight: must be >= 0 and finite");
@@ -643,23 +645,28 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
   std::nth_element(px_per_m.begin(), px_per_m.begin() + std::ptrdiff_t(px_per_m.size() / 2), px_per_m.end());
   const double focal_per_m = px_per_m[px_per_m.size() / 2];
   struct Stage {
-    double from, to;  // fractions of the budget
+    double from, to;        // fractions of the epochs (max_epochs)
+    double t_from, t_to;    // fractions of the seconds
     int scale_first, scale_second;
   };
   std::vector<Stage> stages;
   {
     const int n = o.coarse_levels + 1 + (o.refine ? 1 : 0);
-    double total = 0, weight = 1;
-    std::vector<double> weights;
-    for (int k = 0; k < n; ++k) weights.push_back(weight), total += weight, weight *= 1.5;
-    double at = 0;
+    auto shares = [n](double growth) {
+      std::vector<double> to;
+      double total = 0, weight = 1, at = 0;
+      for (int k = 0; k < n; ++k) total += weight, weight *= growth;
+      weight = 1;
+      for (int k = 0; k < n; ++k) at += weight / total, weight *= growth, to.push_back(k + 1 == n ? 1.0 : at);
+      return to;
+    };
+    const std::vector<double> e_to = shares(1.5), t_to = shares(o.stage_time_growth);
     for (int k = 0; k < n; ++k) {
       const double w = w_in * std::ldexp(1.0, o.coarse_levels - k);
       int scale = 1;
       while (scale < 8 && w * focal_per_m / (2 * scale) >= 1.5) scale *= 2;
-      const double to = k + 1 == n ? 1.0 : at + weights[size_t(k)] / total;
-      stages.push_back({at, to, scale, k + 1 == n ? 1 : std::max(1, scale / 2)});
-      at = to;
+      stages.push_back({k ? e_to[size_t(k - 1)] : 0.0, e_to[size_t(k)], k ? t_to[size_t(k - 1)] : 0.0, t_to[size_t(k)],
+                        scale, k + 1 == n ? 1 : std::max(1, scale / 2)});
     }
   }
   std::mt19937 rng(7);
@@ -728,7 +735,7 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
     long stage_steps = 0;
     stage_epochs = 0;
     const double stage_start = elapsed();
-    const double stage_end = st.to * budget;
+    const double stage_end = st.t_to * budget;
     const int epoch_cap = o.max_epochs > 0 ? std::max(1, int(std::lround(o.max_epochs * (st.to - st.from)))) : 1 << 30;
     for (int e = 0; e < epoch_cap; ++e) {
       const double t_now = elapsed();

@@ -133,6 +133,10 @@ struct SplatFitOptions {
   double opacity_init = 0.3;
   double lr_color = 0.01, lr_rest = 0.0005, lr_opacity = 0.05, lr_sigma = 0.01, lr_offset = 0.02;  // offset: per w
   double lr_final = 0.1;        // the rates fall exponentially to this fraction at each stage's end
+  // The seconds budget's split over the stages: each stage gets this many
+  // times the seconds of the one before. (max_epochs splits the passes over
+  // the photos 1 : 1.5 : 2.25 ..., whatever this is.)
+  double stage_time_growth = 1.5;
   double prune_opacity = 0.02;  // at refinement and at the end
   size_t max_facets = 600000;   // refinement splits the most used facets up to this many (half that before the last stage)
   std::array<float, 3> background{0, 0, 0};

@@ -730,6 +730,42 @@ TEST(SplatFit, A4KPhotoFitsAtACoarseScaleFirst) {
   EXPECT_GT(fit->train_psnr_db, fit->initial_psnr_db);
 }
 
+// A seconds budget (no epoch cap) is split over the three stages (one
+// coarser, the given grid, one finer) 1 : g : g^2. The last epoch before the
+// finest stage's facets ends where the second stage's seconds end (a stage
+// stops at its end, between two photos): at 2/3 of the budget for g = 1 and
+// at 5/21 for g = 4.
+TEST(SplatFit, TheSecondsAreSplitOverTheStagesByTheirGrowth) {
+  const auto truth = truth_sphere();
+  const std::array<float, 3> bg{1, 1, 1};
+  std::vector<Eigen::Isometry3d> train, held;
+  sphere_rig(train, held);
+  const Scene tr = photos_of(truth, train, bg);
+  for (const double growth : {1.0, 4.0}) {
+    SplatFitOptions o;
+    o.background = bg;
+    o.seconds = kSanitized ? 8 : 3;
+    o.sh_degree = 0;
+    o.stage_time_growth = growth;
+    auto splats = init_splats(ball_grid(0.34, 0.04), 0.04f, tr.views, o);
+    auto fit = fit_splats(splats, tr.views, o);
+    ASSERT_TRUE(fit) << fit.error().message;
+    ASSERT_FALSE(fit->curve.empty());
+    const size_t last = fit->curve.back().splats;
+    double second_stage_end = 0;
+    for (const auto& pt : fit->curve)
+      if (pt.splats != last) second_stage_end = pt.seconds;
+    const double expected = growth == 1.0 ? 2.0 / 3.0 : 5.0 / 21.0;
+    std::printf("growth %.0f: second stage ends at %.2f of %.0f s (planned %.2f)\n", growth,
+                second_stage_end / o.seconds, o.seconds, expected);
+    // One photo's step past the plan at most (a small share of the budget).
+    EXPECT_NEAR(second_stage_end / o.seconds, expected, 0.12) << "growth " << growth;
+  }
+  SplatFitOptions o;
+  o.stage_time_growth = 0.1;
+  EXPECT_FALSE(o.validate());
+}
+
 TEST(SplatFit, OptionsValidate) {
   SplatFitOptions o;
   o.sh_degree = 3;
