@@ -14,6 +14,7 @@
 #include "core/image_io.h"
 #include "core/parallel.h"
 #include "core/paths.h"
+#include "core/shell.h"
 #include "core/sweep.h"
 #include "reconstruct/icp_peer.h"
 #include "reconstruct/microfacets.h"
@@ -439,16 +440,13 @@ int bench_reconstruct(const fs::path& out, const std::string& scene_in) {
     }
     const fs::path job_file = out / "open3d_job.json";
     if (auto st = write_file_atomic(job_file, pj.dump()); !st) return error(st.error().message);
-    const std::string cmd = python + " '" + peer_script.string() + "' '" + job_file.string() + "'";
+    const std::string cmd = python + " " + sh_quote(peer_script.string()) + " " + sh_quote(job_file.string());
     nlohmann::json res;
     std::vector<double> peer_runs, peer_fusion_runs;
     for (int k = 0; k < kRuns; ++k) {
-      FILE* pipe = popen(cmd.c_str(), "r");
-      if (!pipe) return error("cannot run " + cmd);
-      std::string line;
-      char buf[4096];
-      while (std::fgets(buf, sizeof buf, pipe)) line += buf;
-      if (pclose(pipe) != 0) return error("the Open3D peer failed: " + cmd);
+      const ShellRun peer = run_shell(cmd);
+      if (peer.code != 0) return error("the Open3D peer failed (exit " + std::to_string(peer.code) + "): " + cmd);
+      const std::string& line = peer.output;
       res = nlohmann::json::parse(line, nullptr, false);
       if (res.is_discarded() || !res.contains("seconds") || !res.contains("seconds_integrate"))
         return error("the Open3D peer printed no result: " + line);

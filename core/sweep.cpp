@@ -10,6 +10,7 @@
 #include <sstream>
 
 #include "core/atomic_file.h"
+#include "core/shell.h"
 
 namespace s2r {
 namespace fs = std::filesystem;
@@ -41,13 +42,6 @@ namespace {
 std::string gp_quote(const std::string& text) {
   std::string out = "'";
   for (char c : text) out += c == '\'' ? std::string("''") : std::string(1, c);
-  return out + "'";
-}
-
-// A POSIX shell single-quoted word: a quote inside ends the word, is escaped, and reopens it.
-std::string sh_quote(const std::string& text) {
-  std::string out = "'";
-  for (char c : text) out += c == '\'' ? std::string("'\\''") : std::string(1, c);
   return out + "'";
 }
 
@@ -105,16 +99,9 @@ Status plot_png(const SweepTable& t, const PlotSpec& spec, const fs::path& png) 
       std::ofstream f(gp);
       f << "set output " << gp_quote(tmp.string()) << "\n" << script.str();
     }
-    const std::string cmd = "gnuplot " + sh_quote(gp.string()) + " 2>&1";
-    FILE* p = ::popen(cmd.c_str(), "r");
-    std::string out;
-    if (p) {
-      char buf[256];
-      while (std::fgets(buf, sizeof buf, p)) out += buf;
-    }
-    const int rc = p ? ::pclose(p) : -1;
+    const ShellRun gnuplot = run_shell("gnuplot " + sh_quote(gp.string()) + " 2>&1");
     fs::remove(gp);
-    if (rc != 0) return fail("gnuplot failed (is gnuplot-nox installed?): " + out);
+    if (gnuplot.code != 0) return fail("gnuplot failed (is gnuplot-nox installed?): " + gnuplot.output);
     return {};
   });
 }

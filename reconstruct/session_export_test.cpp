@@ -18,19 +18,16 @@
 #include "capture/session.h"
 #include "capture/synth_rig.h"
 #include "core/progress.h"
+#include "core/shell.h"
 
 namespace {
 namespace fs = std::filesystem;
 using namespace s2r;
 
 std::string run(const std::string& cmd, int* code) {
-  FILE* p = popen((cmd + " 2>&1").c_str(), "r");
-  std::string out;
-  std::array<char, 512> buf;
-  while (p && fgets(buf.data(), buf.size(), p)) out += buf.data();
-  const int st = p ? pclose(p) : -1;
-  *code = WIFEXITED(st) ? WEXITSTATUS(st) : -1;
-  return out;
+  const ShellRun r = run_shell(cmd + " 2>&1");
+  *code = r.code;
+  return r.output;
 }
 
 class Export : public ::testing::Test {

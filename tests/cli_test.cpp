@@ -8,8 +8,12 @@
 #include <fstream>
 #include <string>
 
+#include "core/shell.h"
+
 namespace {
 namespace fs = std::filesystem;
+using s2r::ShellRun;
+using s2r::run_shell;
 
 struct Run {
   int code;
@@ -18,12 +22,8 @@ struct Run {
 
 Run run_s2r(const std::string& args) {
   const std::string cmd = std::string(S2R_BINARY_DIR) + "/app/s2r " + args + " 2>&1";
-  FILE* p = popen(cmd.c_str(), "r");
-  std::string out;
-  std::array<char, 512> buf;
-  while (p && fgets(buf.data(), buf.size(), p)) out += buf.data();
-  int st = p ? pclose(p) : -1;
-  return {WIFEXITED(st) ? WEXITSTATUS(st) : -1, out};
+  const ShellRun r = run_shell(cmd);
+  return {r.code, r.output};
 }
 
 TEST(Cli, HelpListsTheDesignSubcommands) {
