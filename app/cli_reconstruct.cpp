@@ -125,7 +125,8 @@ void add_reconstruct(CLI::App& app, Chosen& chosen) {
       ->capture_default_str();
   sub->add_option("--fit-stage-growth", job.fit_stage_growth,
                   "the fit runs coarse to fine in stages (the grid halving at each); each stage gets this many times "
-                  "the seconds of the one before, the finest the most")
+                  "the seconds of the one before (above 1: the finest stage the most; seconds moved there trade PSNR for "
+                  "SSIM, docs/cli.md)")
       ->check(CLI::Range(0.25, 16.0))
       ->capture_default_str();
   sub->add_option("--fit-sh", job.fit_sh_degree, "spherical-harmonic degree of the fitted colour (0: the same from every side)")
@@ -142,6 +143,11 @@ void add_reconstruct(CLI::App& app, Chosen& chosen) {
                   "captures with depth: the fit's loss adds W x the squared distance (in voxels) of each pixel's opacity "
                   "from the fused depth surface, so facets stay on the surface the depth camera saw; 0: colour alone")
       ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  sub->add_option("--fit-opacity-entropy", job.fit_opacity_entropy,
+                  "the fit's loss adds W x the entropy of each facet's opacity, weighted by the pixels it draws: "
+                  "opacities pushed towards 0 or 1 (half-transparent fuzz at silhouettes); 0: none")
+      ->check(CLI::Range(0.0, 1.0))
       ->capture_default_str();
   sub->add_option("--fit-snapshots", job.fit_snapshots,
                   "S,T,...: also write the fit as it was at these seconds (splats_<S>s.bin; s2r eval --splats)")

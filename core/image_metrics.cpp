@@ -1,5 +1,7 @@
 #include "core/image_metrics.h"
 
+#include "core/parallel.h"
+
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -86,7 +88,7 @@ Result<double> ssim(const ImageU8& a, const ImageU8& b, const ImageU8* mask) {
   return sum / double(n);
 }
 
-double ssim_and_gradient(const ImageF& x, const ImageF& y, ImageF* d_dx) {
+double ssim_and_gradient(const ImageF& x, const ImageF& y, ImageF* d_dx, int threads) {
   const double C1 = 1e-4, C2 = 9e-4;
   const int type = CV_32FC(x.channels);
   // Headers on the images' own floats (not written through).
@@ -97,31 +99,56 @@ double ssim_and_gradient(const ImageF& x, const ImageF& y, ImageF* d_dx) {
     cv::GaussianBlur(m, o, cv::Size(11, 11), 1.5, 1.5, cv::BORDER_CONSTANT);
     return o;
   };
-  const cv::Mat mx = blur(X), my = blur(Y), exx = blur(X.mul(X)), eyy = blur(Y.mul(Y)), exy = blur(X.mul(Y));
+  // The five windowed moments, one filter a task.
+  cv::Mat mom[5];
+  parallel_for(5, threads, [&](int k) {
+    switch (k) {
+      case 0: mom[0] = blur(X); break;
+      case 1: mom[1] = blur(Y); break;
+      case 2: mom[2] = blur(X.mul(X)); break;
+      case 3: mom[3] = blur(Y.mul(Y)); break;
+      default: mom[4] = blur(X.mul(Y));
+    }
+  });
   const size_t n = x.data.size();
   cv::Mat a, b, c;
   if (d_dx) a.create(X.size(), type), b.create(X.size(), type), c.create(X.size(), type);
+  const float *pmx = mom[0].ptr<float>(), *pmy = mom[1].ptr<float>(), *pxx = mom[2].ptr<float>(),
+              *pyy = mom[3].ptr<float>(), *pxy = mom[4].ptr<float>();
+  // The map's terms in row bands, each band's sum kept apart and added in
+  // order (the same sum whatever the threads).
+  const size_t row = size_t(x.width) * size_t(x.channels);
+  const int bands = (x.height + 15) / 16;
+  std::vector<double> band_sum(size_t(bands), 0.0);
+  parallel_for(bands, threads, [&](int band) {
+    double sum = 0;
+    const size_t lo = size_t(band) * 16 * row, hi = std::min(n, lo + 16 * row);
+    for (size_t i = lo; i < hi; ++i) {
+      const double ux = pmx[i], uy = pmy[i];
+      const double n1 = 2 * ux * uy + C1, n2 = 2 * (pxy[i] - ux * uy) + C2;
+      const double d1 = ux * ux + uy * uy + C1, d2 = (pxx[i] - ux * ux) + (pyy[i] - uy * uy) + C2;
+      const double S = n1 * n2 / (d1 * d2);
+      sum += S;
+      if (!d_dx) continue;
+      // dS/d(mean x), dS/d(E[x^2]), dS/d(E[xy]), the variances through the raw moments.
+      a.ptr<float>()[i] = float(S * (2 * uy / n1 - 2 * uy / n2 - 2 * ux / d1 + 2 * ux / d2));
+      b.ptr<float>()[i] = float(-S / d2);
+      c.ptr<float>()[i] = float(2 * S / n2);
+    }
+    band_sum[size_t(band)] = sum;
+  });
   double sum = 0;
-  const float *pmx = mx.ptr<float>(), *pmy = my.ptr<float>(), *pxx = exx.ptr<float>(), *pyy = eyy.ptr<float>(),
-              *pxy = exy.ptr<float>();
-  for (size_t i = 0; i < n; ++i) {
-    const double ux = pmx[i], uy = pmy[i];
-    const double n1 = 2 * ux * uy + C1, n2 = 2 * (pxy[i] - ux * uy) + C2;
-    const double d1 = ux * ux + uy * uy + C1, d2 = (pxx[i] - ux * ux) + (pyy[i] - uy * uy) + C2;
-    const double S = n1 * n2 / (d1 * d2);
-    sum += S;
-    if (!d_dx) continue;
-    // dS/d(mean x), dS/d(E[x^2]), dS/d(E[xy]), the variances through the raw moments.
-    a.ptr<float>()[i] = float(S * (2 * uy / n1 - 2 * uy / n2 - 2 * ux / d1 + 2 * ux / d2));
-    b.ptr<float>()[i] = float(-S / d2);
-    c.ptr<float>()[i] = float(2 * S / n2);
-  }
+  for (double s : band_sum) sum += s;
   if (d_dx) {
-    const cv::Mat ga = blur(a), gb = blur(b), gc = blur(c);
+    cv::Mat g[3];
+    parallel_for(3, threads, [&](int k) { g[k] = blur(k == 0 ? a : k == 1 ? b : c); });
     *d_dx = ImageF(x.width, x.height, x.channels);
     const float inv = float(1.0 / double(n));
-    const float *pa = ga.ptr<float>(), *pb = gb.ptr<float>(), *pc = gc.ptr<float>();
-    for (size_t i = 0; i < n; ++i) d_dx->data[i] = inv * (pa[i] + 2 * x.data[i] * pb[i] + y.data[i] * pc[i]);
+    const float *pa = g[0].ptr<float>(), *pb = g[1].ptr<float>(), *pc = g[2].ptr<float>();
+    parallel_for(bands, threads, [&](int band) {
+      const size_t lo = size_t(band) * 16 * row, hi = std::min(n, lo + 16 * row);
+      for (size_t i = lo; i < hi; ++i) d_dx->data[i] = inv * (pa[i] + 2 * x.data[i] * pb[i] + y.data[i] * pc[i]);
+    });
   }
   return sum / double(n);
 }

@@ -31,7 +31,9 @@ Result<double> ssim(const ImageU8& a, const ImageU8& b, const ImageU8* mask = nu
 // Simoncelli, "Image Quality Assessment: From Error Visibility to
 // Structural Similarity" (2004); as a training loss, Kerbl et al., "3D
 // Gaussian Splatting for Real-Time Radiance Field Rendering" (2023).
-double ssim_and_gradient(const ImageF& x, const ImageF& y, ImageF* d_dx = nullptr);
+// `threads` (0: every usable core) share the window's filters and the
+// per-pixel terms; the result is the same for any count.
+double ssim_and_gradient(const ImageF& x, const ImageF& y, ImageF* d_dx = nullptr, int threads = 1);
 
 // A silhouette's band: the pixels whose matte is fractional (1..254) or
 // within `band_px` pixels (a square neighbourhood) of where the matte crosses

@@ -153,6 +153,13 @@ TEST(SsimLoss, GradientMatchesFiniteDifferences) {
   EXPECT_LT(worst, 0.02 * largest) << "largest " << largest;
   EXPECT_NEAR(ssim_and_gradient(y, y, &g), 1.0, 1e-6);
   for (float v : g.data) EXPECT_NEAR(v, 0.f, 1e-6f);
+  // Threads share the filters and the bands of rows: the same figure and
+  // gradient, to the bit, as one thread.
+  ImageF bx(41, 37, 3), by(41, 37, 3), g1, g3;  // three bands of rows
+  for (size_t i = 0; i < bx.data.size(); ++i) by.data[i] = rnd(), bx.data[i] = std::clamp(by.data[i] + 0.3f * (rnd() - 0.5f), 0.f, 1.f);
+  const double one = ssim_and_gradient(bx, by, &g1, 1), three = ssim_and_gradient(bx, by, &g3, 3);
+  EXPECT_EQ(one, three);
+  EXPECT_EQ(g1.data, g3.data);
 }
 
 }  // namespace

@@ -90,7 +90,12 @@ class DivergenceGuard {
   DivergenceGuard(double initial_psnr_db, int initial_scale) : initial_(initial_psnr_db), initial_scale_(initial_scale) {}
   void new_stage() { best_.clear(), ++stage_; }
   // An error message when `psnr_db` at `scale` is divergence, else empty.
-  std::string observe(int epoch, int scale, double psnr_db);
+  // An epoch cut short (`whole` false: a stage or the budget ended inside
+  // it) is the error of the few photos it reached, not comparable with a
+  // whole pass over them (on the Middlebury dino one photo can be 3 dB
+  // under the mean): it neither counts nor sets a record, unless it is not
+  // a number at all.
+  std::string observe(int epoch, int scale, double psnr_db, bool whole = true);
 
  private:
   double initial_;
@@ -164,6 +169,14 @@ struct SplatFitOptions {
   // radiance fields do (Deng, Liu, Zhu and Ramanan, "Depth-supervised NeRF:
   // Fewer Views and Faster Training for Free", 2022).
   double depth_weight = 0;
+  // The loss adds opacity_entropy x the mean over the photo's pixels of
+  // sum_i w_i H(o_i), H(o) = -o ln o - (1 - o) ln (1 - o), w_i facet i's
+  // compositing weight there: each facet's opacity pushed towards 0 or 1
+  // in proportion to what it draws. Half-transparent facets that explain
+  // the training photos between them show from other sides as fuzz (at
+  // silhouettes on a sparse ring); binary opacity is the prior Lombardi et
+  // al. put on their volumes' opacities ("Neural Volumes", 2019).
+  double opacity_entropy = 0;
   int threads = 0;
   std::vector<double> seconds_marks;  // snapshots of the facets at these seconds (error against run time)
   std::function<void(double fraction)> on_progress;
