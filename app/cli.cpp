@@ -19,7 +19,7 @@ void add_bench(CLI::App& app, Chosen& chosen) {
                   "tracer), material (texture / bump / parallax occlusion mapping switched per pixel by Tsutsumi's thresholds, "
                   "frame time and PSNR against parallax everywhere, on a board and a roof model), "
                   "views (held-out views as the field measures them: lego val on white fitted on train, the rig bunny and fuzzy, "
-                  "the Middlebury dino ring leave-one-out, the RealSense bear; billboards and the textured patch mesh; full-image and "
+                  "the Middlebury dino ring leave-one-out, the RealSense bear; the fit, billboards, the textured patch mesh and fused surface; full-image and "
                   "masked PSNR/SSIM, build seconds, model bytes, frame ms; views.csv, views.png)")
       ->required();
   sub->add_option("--out", a->out, "output folder")->required();

@@ -4,8 +4,8 @@
 // 17 held out), the Middlebury dino ring (frames 3, 7 and 11, each left out of
 // its own model), the RealSense bear (frame 3 held out, the poses from the
 // table's dot markers; the registration's distance from them reported).
-// Billboards, the textured patch mesh and (captures with depth) the textured
-// fused surface in the same run; build seconds, model bytes, frame ms at the
+// Billboards, the textured patch mesh and the textured fused surface (the
+// hull's boundary where there is no depth) in the same run; build seconds, model bytes, frame ms at the
 // images' size.
 #include <algorithm>
 #include <cstdio>
@@ -63,8 +63,8 @@ std::vector<int> frames_every(int count, int step) {
 }
 
 // Reconstructs `job`, then evaluates `frames` of `eval_session` with the fit,
-// billboards, the textured patch mesh and the textured fused surface (where
-// the capture has depth).
+// billboards, the textured patch mesh and the textured fused surface (the
+// depth's surface, or without depth the hull's boundary).
 Status build_and_eval(SceneRun& run, ReconstructJob job, const FrameSource& source, const std::vector<int>& frames,
                       const fs::path& eval_out) {
   job.fit_seconds = run.fit_seconds;
