@@ -144,11 +144,6 @@ void add_reconstruct(CLI::App& app, Chosen& chosen) {
                   "from the fused depth surface, so facets stay on the surface the depth camera saw; 0: colour alone")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
-  sub->add_option("--fit-opacity-entropy", job.fit_opacity_entropy,
-                  "the fit's loss adds W x the entropy of each facet's opacity, weighted by the pixels it draws: "
-                  "opacities pushed towards 0 or 1 (half-transparent fuzz at silhouettes); 0: none")
-      ->check(CLI::Range(0.0, 1.0))
-      ->capture_default_str();
   sub->add_option("--fit-snapshots", job.fit_snapshots,
                   "S,T,...: also write the fit as it was at these seconds (splats_<S>s.bin; s2r eval --splats)")
       ->delimiter(',');

@@ -708,7 +708,6 @@ Status fit_step(const ReconstructJob& job, const Session& s, const std::vector<V
   o.random_background = job.fit_random_background;
   o.ssim_weight = job.fit_ssim_weight;
   o.depth_weight = job.fit_depth_weight;
-  o.opacity_entropy = job.fit_opacity_entropy;
   o.seconds_marks = job.fit_snapshots;
   Progress bar("fit", 1000);
   size_t shown = 0;
@@ -765,7 +764,6 @@ Status fit_step(const ReconstructJob& job, const Session& s, const std::vector<V
   rep.params["fit_ssim_weight"] = job.fit_ssim_weight;
   rep.params["fit_max_facets"] = double(job.fit_max_facets);
   rep.params["fit_stage_growth"] = job.fit_stage_growth;
-  rep.params["fit_opacity_entropy"] = job.fit_opacity_entropy;
   rep.params["fit_depth_weight"] = job.fit_depth_weight;
   if (fit->initial_depth_rms_m > 0) {
     rep.errors["fit_initial_depth_rms_mm"] = fit->initial_depth_rms_m * 1e3;
@@ -788,8 +786,6 @@ Status ReconstructJob::validate() const {
   if (fit_epochs < 0) return fail(ErrorCode::invalid, "fit_epochs: must be >= 0 (0: the seconds alone)");
   if (fit_max_facets < 1000 || fit_max_facets > 20000000)
     return fail(ErrorCode::invalid, "fit_max_facets: must be between 1,000 and 20,000,000");
-  if (!(fit_opacity_entropy >= 0 && fit_opacity_entropy <= 1))
-    return fail(ErrorCode::invalid, "fit_opacity_entropy: must be between 0 and 1");
   if (!(fit_stage_growth >= 0.25 && fit_stage_growth <= 16))
     return fail(ErrorCode::invalid, "fit_stage_growth: must be between 0.25 and 16");
   return {};

@@ -69,7 +69,6 @@ struct ReconstructJob {
   // with the squared error alone; docs/cli.md).
   double fit_ssim_weight = 0.2;
   double fit_depth_weight = 0;         // the fit's depth term where the capture has depth (SplatFitOptions::depth_weight)
-  double fit_opacity_entropy = 0;      // the fit's push of each opacity towards 0 or 1 (SplatFitOptions::opacity_entropy)
   std::vector<double> fit_snapshots;  // seconds: also write splats_<s>s.bin at these (error against run time)
   int threads = 0;
 

@@ -517,7 +517,6 @@ Status SplatFitOptions::validate() const {
   if (coarse_levels < 0 || coarse_levels > 4) return fail(ErrorCode::invalid, "fit: coarse_levels: must be in 0..4");
   if (!(ssim_weight >= 0 && ssim_weight < 1)) return fail(ErrorCode::invalid, "fit: ssim_weight: must be in [0, 1)");
   if (!(depth_weight >= 0) || !std::isfinite(depth_weight)) return fail(ErrorCode::invalid, "fit: depth_weight: must be >= 0 and finite");
-  if (!(opacity_entropy >= 0 && opacity_entropy <= 1)) return fail(ErrorCode::invalid, "fit: opacity_entropy: must be in [0, 1]");
   for (float b : background)
     if (!(b >= 0 && b <= 1)) return fail(ErrorCode::invalid, "fit: background: each channel must be in [0, 1]");
   return {};
@@ -775,7 +774,6 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
         const SplatFrame f = project(splats, coeffs, K, view.world_from_camera, o.threads);
         const double t_b = elapsed();
         const float inv = 1.f / float(3.0 * K.width * K.height);
-        const float entropy = float(o.opacity_entropy) / float(K.width * K.height);
         sq += forward_backward(f, *target, bg, inv, o.threads, &grads, float(o.ssim_weight), 0, depth_scale, &dsq, &dpx);
         const double t_c = elapsed();
         sum.seconds_project += t_b - t_a;
@@ -810,8 +808,6 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
             g[0] = dworld.x(), g[1] = dworld.y(), g[2] = dworld.z();
             g[3] = gr.sigma * pr.sigma;
             g[4] = gr.o * pr.o * (1.f - pr.o);
-            // dH/dlogit = -o (1 - o) logit(o), weighted by the pixels' share.
-            if (entropy > 0) g[4] -= entropy * gr.weight * pr.o * (1.f - pr.o) * s.opacity_logit;
             sh_basis((s.centre() - eye).normalized(), coeffs, basis);
             for (int k = 0; k < coeffs; ++k)
               for (int c = 0; c < 3; ++c) g[5 + k * 3 + c] = (pr.clamped >> c & 1) ? 0.f : gr.c[c] * basis[k];

@@ -169,14 +169,6 @@ struct SplatFitOptions {
   // radiance fields do (Deng, Liu, Zhu and Ramanan, "Depth-supervised NeRF:
   // Fewer Views and Faster Training for Free", 2022).
   double depth_weight = 0;
-  // The loss adds opacity_entropy x the mean over the photo's pixels of
-  // sum_i w_i H(o_i), H(o) = -o ln o - (1 - o) ln (1 - o), w_i facet i's
-  // compositing weight there: each facet's opacity pushed towards 0 or 1
-  // in proportion to what it draws. Half-transparent facets that explain
-  // the training photos between them show from other sides as fuzz (at
-  // silhouettes on a sparse ring); binary opacity is the prior Lombardi et
-  // al. put on their volumes' opacities ("Neural Volumes", 2019).
-  double opacity_entropy = 0;
   int threads = 0;
   std::vector<double> seconds_marks;  // snapshots of the facets at these seconds (error against run time)
   std::function<void(double fraction)> on_progress;

@@ -734,44 +734,6 @@ TEST(SplatFit, A4KPhotoFitsAtACoarseScaleFirst) {
   EXPECT_GT(fit->train_psnr_db, fit->initial_psnr_db);
 }
 
-// The opacity entropy term pushes opacities towards 0 or 1: on the sphere,
-// at equal epochs, fewer of the facets that draw it are half transparent
-// (0.53 against 0.78 at W = 0.01), and the unseen views stay within a
-// decibel (30.6 against 31.0 dB: a smooth sphere is drawn well by soft
-// facets; W = 0.05 costs it 2.7 dB).
-TEST(SplatFit, OpacityEntropyMakesOpacitiesBinary) {
-  const auto truth = truth_sphere();
-  const std::array<float, 3> bg{1, 1, 1};
-  std::vector<Eigen::Isometry3d> train, held;
-  sphere_rig(train, held);
-  const Scene tr = photos_of(truth, train, bg), ho = photos_of(truth, held, bg);
-  double half[2], held_psnr[2];
-  for (int k = 0; k < 2; ++k) {
-    SplatFitOptions o;
-    o.background = bg;
-    o.seconds = 120;
-    o.max_epochs = kSanitized ? 4 : 16;
-    o.sh_degree = 0;
-    o.opacity_entropy = k ? 0.01 : 0.0;
-    auto splats = init_splats(ball_grid(0.34, 0.04), 0.04f, tr.views, o);
-    auto fit = fit_splats(splats, tr.views, o);
-    ASSERT_TRUE(fit) << fit.error().message;
-    size_t n = 0;
-    for (const Splat& s : splats) n += s.opacity() > 0.1f && s.opacity() < 0.9f;
-    half[k] = double(n) / double(splats.size());
-    held_psnr[k] = 0;
-    for (size_t i = 0; i < held.size(); ++i)
-      held_psnr[k] += *psnr(to_u8(render_splats(splats, 1, small_camera(), held[i], bg)), ho.photos[i]) / double(held.size());
-    std::printf("opacity entropy %.3f: %.3f of %zu facets half transparent, held-out %.2f dB\n", o.opacity_entropy,
-                half[k], splats.size(), held_psnr[k]);
-  }
-  EXPECT_LT(half[1], half[0]);
-  EXPECT_GT(held_psnr[1], held_psnr[0] - 1.0);
-  SplatFitOptions bad;
-  bad.opacity_entropy = -0.1;
-  EXPECT_FALSE(bad.validate());
-}
-
 // A seconds budget (no epoch cap) is split over the three stages (one
 // coarser, the given grid, one finer) 1 : g : g^2. The last epoch before the
 // finest stage's facets ends where the second stage's seconds end (a stage
