@@ -99,6 +99,13 @@ void sphere_rig(std::vector<Eigen::Isometry3d>& train, std::vector<Eigen::Isomet
   for (int i = 0; i < 4; ++i) held.push_back(ring_camera(11.25 + i * 90, 5, 1.5));
 }
 
+// The sphere's photos from the training cameras of sphere_rig, on bg.
+Scene sphere_training_photos(const std::array<float, 3>& bg) {
+  std::vector<Eigen::Isometry3d> train, held;
+  sphere_rig(train, held);
+  return photos_of(truth_sphere(), train, bg);
+}
+
 TEST(SplatFit, RenderIsTheCompositingFormula) {
   // One splat, opacity 0.5, on white: its centre pixel is 0.5 c + 0.5 white.
   Splat s;
@@ -740,11 +747,8 @@ TEST(SplatFit, A4KPhotoFitsAtACoarseScaleFirst) {
 // stops at its end, between two photos): at 2/3 of the budget for g = 1 and
 // at 5/21 for g = 4.
 TEST(SplatFit, TheSecondsAreSplitOverTheStagesByTheirGrowth) {
-  const auto truth = truth_sphere();
   const std::array<float, 3> bg{1, 1, 1};
-  std::vector<Eigen::Isometry3d> train, held;
-  sphere_rig(train, held);
-  const Scene tr = photos_of(truth, train, bg);
+  const Scene tr = sphere_training_photos(bg);
   for (const double growth : {1.0, 4.0}) {
     SplatFitOptions o;
     o.background = bg;
