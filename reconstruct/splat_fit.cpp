@@ -663,12 +663,12 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
   std::vector<Stage> stages;
   {
     const int n = o.coarse_levels + 1 + (o.refine ? 1 : 0);
+    // Where each stage ends, as a fraction of the whole, stage k weighing growth^k.
     auto shares = [n](double growth) {
-      std::vector<double> to;
-      double total = 0, weight = 1, at = 0;
-      for (int k = 0; k < n; ++k) total += weight, weight *= growth;
-      weight = 1;
-      for (int k = 0; k < n; ++k) at += weight / total, weight *= growth, to.push_back(k + 1 == n ? 1.0 : at);
+      std::vector<double> to(static_cast<size_t>(n));
+      double at = 0, weight = 1;
+      for (double& t : to) t = at += weight, weight *= growth;
+      for (double& t : to) t /= at;
       return to;
     };
     const std::vector<double> e_to = shares(1.5), t_to = shares(o.stage_time_growth);
