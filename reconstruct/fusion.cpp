@@ -1,6 +1,7 @@
 // The sparse volume on OpenVDB (the only translation unit that includes it).
 #include "reconstruct/fusion.h"
 #include "reconstruct/fusion_grids.h"
+#include "reconstruct/mask_windows.h"
 
 #include <algorithm>
 #include <array>
@@ -40,28 +41,6 @@ void in_arena(int threads, F&& f) {
     f();
   }
 }
-
-// Summed-area table of a mask (counts of non-zero pixels).
-struct MaskTable {
-  int w = 0, h = 0;
-  std::vector<int32_t> sum;  // (w+1) x (h+1)
-  explicit MaskTable(const ImageU8& m) : w(m.width), h(m.height), sum(size_t(w + 1) * (h + 1), 0) {
-    for (int y = 0; y < h; ++y) {
-      int32_t row = 0;
-      for (int x = 0; x < w; ++x) {
-        row += m.data[(size_t(y) * w + x) * m.channels] != 0;
-        sum[size_t(y + 1) * (w + 1) + x + 1] = sum[size_t(y) * (w + 1) + x + 1] + row;
-      }
-    }
-  }
-  // Foreground pixels in [x0,x1] x [y0,y1] (inclusive, clipped to the image).
-  int32_t count(int x0, int y0, int x1, int y1) const {
-    x0 = std::max(x0, 0), y0 = std::max(y0, 0), x1 = std::min(x1, w - 1), y1 = std::min(y1, h - 1);
-    if (x0 > x1 || y0 > y1) return 0;
-    auto at = [&](int x, int y) { return sum[size_t(y) * (w + 1) + x]; };
-    return at(x1 + 1, y1 + 1) - at(x0, y1 + 1) - at(x1 + 1, y0) + at(x0, y0);
-  }
-};
 
 // A sphere's projected footprint as an inclusive pixel window (conservative by
 // a pixel for lens distortion). Empty when the sphere reaches the camera plane.
@@ -556,14 +535,14 @@ HullStats SparseVolume::carve_hull(const std::vector<SilhouetteObservation>& vie
   HullStats hs;
   m.hull_only = depth.empty();
   struct ViewData {
-    MaskTable table;
+    MaskWindows table;
     Eigen::Isometry3d cam_from_world;
     const Intrinsics* K;
   };
   std::vector<ViewData> vd;
   vd.reserve(views.size());
   for (const auto& v : views)
-    if (v.mask && !v.mask->empty()) vd.push_back({MaskTable(*v.mask), v.world_from_camera.inverse(), &v.intrinsics});
+    if (v.mask && !v.mask->empty()) vd.push_back({MaskWindows(*v.mask), v.world_from_camera.inverse(), &v.intrinsics});
 
   // Coarse to fine: a cell of level k spans 2^k voxels per axis.
   const double extent = box.sizes().maxCoeff();
@@ -594,7 +573,7 @@ HullStats SparseVolume::carve_hull(const std::vector<SilhouetteObservation>& vie
           for (const auto& v : vd) {
             auto win = footprint(*v.K, v.cam_from_world * centre, radius);
             if (!win) continue;  // the camera is at the cell: no verdict
-            if (v.table.count(win->x0, win->y0, win->x1, win->y1) == 0) {
+            if (!v.table.any(win->x0, win->y0, win->x1, win->y1)) {
               keep[i] = 0;
               break;
             }

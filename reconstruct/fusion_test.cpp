@@ -7,11 +7,13 @@
 #include <cmath>
 #include <filesystem>
 #include <numbers>
+#include <random>
 #include <unistd.h>
 
 #include "core/image_io.h"
 #include "reconstruct/camera_depth.h"
 #include "reconstruct/fusion.h"
+#include "reconstruct/mask_windows.h"
 #include "reconstruct/microfacets.h"
 
 using namespace s2r;
@@ -398,4 +400,44 @@ TEST(CameraTexture, RgbazRoundTrip) {
   EXPECT_EQ(back->distance.data, t.distance.data);  // distances are stored as float
   EXPECT_FALSE(write_rgbaz(p, {ImageU8(8, 4, 3), ImageF(8, 4, 1)}));
   fs::remove(p);
+}
+
+// The hull's window test against reading every pixel: sparse and dense
+// masks of sizes that are and are not multiples of the block, windows
+// inside, across the edges, wholly outside, one pixel and the whole image,
+// a mask of three channels (its first read).
+TEST(MaskWindows, AnswersAsReadingEveryPixelDoes) {
+  std::mt19937 gen(5);
+  for (const auto& [w, h, ch, density] : std::vector<std::tuple<int, int, int, double>>{
+           {37, 29, 1, 0.002}, {64, 48, 1, 0.02}, {33, 17, 3, 0.2}, {8, 5, 1, 0.05}, {1, 1, 1, 1.0}}) {
+    ImageU8 m(w, h, ch);
+    std::bernoulli_distribution fg(density);
+    for (size_t p = 0; p < m.pixels(); ++p) m.data[p * size_t(ch)] = fg(gen) ? uint8_t(1 + gen() % 255) : 0;
+    m.at(w / 2, h / 2, 0) = 7;  // at least one
+    if (ch == 3) {  // other channels set where the first is not: they must not count
+      for (size_t p = 0; p < m.pixels(); ++p) m.data[p * 3 + 1] = 255;
+    }
+    const MaskWindows t(m);
+    auto brute = [&](int x0, int y0, int x1, int y1) {
+      for (int y = std::max(y0, 0); y <= std::min(y1, h - 1); ++y)
+        for (int x = std::max(x0, 0); x <= std::min(x1, w - 1); ++x)
+          if (m.at(x, y, 0)) return true;
+      return false;
+    };
+    std::uniform_int_distribution<int> cx(-6, w + 5), cy(-6, h + 5);
+    int found = 0;
+    for (int k = 0; k < 20000; ++k) {
+      int x0 = cx(gen), x1 = cx(gen), y0 = cy(gen), y1 = cy(gen);
+      if (k % 3 == 0) x1 = x0 + int(gen() % 3), y1 = y0 + int(gen() % 3);  // small windows, as the finest cells'
+      const bool want = brute(x0, y0, x1, y1);
+      found += want;
+      ASSERT_EQ(t.any(x0, y0, x1, y1), want) << w << "x" << h << " [" << x0 << "," << x1 << "] x [" << y0 << "," << y1 << "]";
+    }
+    EXPECT_EQ(t.any(0, 0, w - 1, h - 1), brute(0, 0, w - 1, h - 1));
+    EXPECT_FALSE(t.any(w, 0, w + 3, h - 1));
+    if (density < 1) {
+      EXPECT_GT(20000 - found, 0);  // some windows were empty
+    }
+    EXPECT_GT(found, 0);
+  }
 }

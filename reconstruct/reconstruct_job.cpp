@@ -830,6 +830,11 @@ Result<ReconstructSummary> run_reconstruct_job(const ReconstructJob& job) {
   sum.seconds_fusion = timer.lap("fusion");
   if (plan->uses_hull()) carve_hull(job, *plan, *views, depth_obs, extent->box, volume, rep);
   timer.lap("hull");
+  // The depth images and silhouettes are not read again: let them go (on a
+  // 200-photo capture at 12 MP they are 7 GB of the job's memory).
+  depth_obs = {};
+  plan->masks = {};
+  for (View& v : *views) v.depth = {};
 
   std::error_code ec;
   fs::create_directories(job.out / "cameras", ec);
@@ -887,21 +892,24 @@ Result<ReconstructSummary> run_reconstruct_job(const ReconstructJob& job) {
   // draws from the photos or fits to them).
   std::optional<ImageU8> plate;
   if (in->s.layout == Layout::kObjectCentre && (job.textures || job.fit_seconds > 0)) {
-    if (!job.textures) distance = all_camera_depths(*views, depth, job.threads);
+    // Where each camera sees none of the surface; without textures each
+    // camera's distances are made and let go one at a time (all of them at
+    // once are 4 bytes a pixel of every photo).
     std::vector<const ImageU8*> photos;
-    std::vector<ImageU8> empty;
-    for (size_t i = 0; i < views->size(); ++i) {
-      photos.push_back(&(*views)[i].color);
-      const ImageF& d = distance[i];
+    std::vector<ImageU8> empty(views->size());
+    parallel_for(int(views->size()), worker_count(job.threads), [&](int i) {
+      const View& v = (*views)[size_t(i)];
+      const ImageF made = job.textures ? ImageF{} : depth(v.K, v.world_from_camera);
+      const ImageF& d = job.textures ? distance[size_t(i)] : made;
       ImageU8 e(d.width, d.height, 1);
       for (size_t p = 0; p < d.pixels(); ++p) e.data[p] = d.data[p] > 0 ? 0 : 255;
-      empty.push_back(std::move(e));
-    }
+      empty[size_t(i)] = std::move(e);
+    });
+    for (const View& v : *views) photos.push_back(&v.color);
     BackdropPlateResult pr = make_backdrop_plate(photos, empty, fit_background(in->s, *views));
     rep.counts["backdrop_plate_kept_share"] = pr.kept_share;
     if (pr.plate) rep.counts["backdrop_plate_filled_share"] = pr.filled_share;
     rep.errors["backdrop_plate_spread"] = pr.spread;
-    if (!job.textures) distance.assign(views->size(), ImageF{});
     if (pr.plate) {
       if (auto st = write_image(job.out / "backdrop.png", *pr.plate); !st) return std::unexpected(st.error());
       model.backdrop = "backdrop.png";
