@@ -7,6 +7,7 @@
 #include <cmath>
 
 #include "core/parallel.h"
+#include "core/progress.h"
 
 namespace s2r {
 
@@ -56,7 +57,9 @@ BackdropPlateResult make_backdrop_plate(const std::vector<const ImageU8*>& photo
   const size_t need = std::max<size_t>(3, size_t(std::ceil(o.min_share * double(photos.size()))));
   ImageU8 plate(W, H, 3);
   std::vector<float> spread(size_t(W) * H, -1.f);  // per kept pixel: the largest channel's MAD
+  SharedProgress rows("backdrop plate", size_t(H));
   parallel_for(H, 0, [&](int y) {
+    rows.tick();
     std::vector<uint8_t> s[3];
     std::vector<int> dev;
     for (int x = 0; x < W; ++x) {
@@ -85,6 +88,7 @@ BackdropPlateResult make_backdrop_plate(const std::vector<const ImageU8*>& photo
       spread[size_t(y) * W + size_t(x)] = worst;
     }
   });
+  rows.done();
   std::vector<float> kept;
   size_t uniform = 0;
   for (size_t p = 0; p < spread.size(); ++p) {

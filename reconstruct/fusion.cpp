@@ -3,6 +3,8 @@
 #include "reconstruct/fusion_grids.h"
 #include "reconstruct/mask_windows.h"
 
+#include "core/progress.h"
+
 #include <algorithm>
 #include <array>
 #include <atomic>
@@ -41,6 +43,9 @@ void in_arena(int threads, F&& f) {
     f();
   }
 }
+
+// The hull's progress line for one level of its coarse-to-fine carve.
+std::string fmt_level(int k, int n) { return "hull: level " + std::to_string(k) + " of " + std::to_string(n); }
 
 // A sphere's projected footprint as an inclusive pixel window (conservative by
 // a pixel for lens distortion). Empty when the sphere reaches the camera plane.
@@ -563,8 +568,13 @@ HullStats SparseVolume::carve_hull(const std::vector<SilhouetteObservation>& vie
     const double size = m.voxel * s;
     const double radius = 0.5 * std::sqrt(3.0) * size;
     std::vector<uint8_t> keep(cells.size(), 1);
+    // A line for the levels that take a while only (a million cells: some
+    // seconds); the coarse ones pass in milliseconds.
+    std::optional<SharedProgress> progress;
+    if (cells.size() >= 1000000) progress.emplace(fmt_level(top - level + 1, top + 1), cells.size());
     in_arena(threads, [&] {
       tbb::parallel_for(tbb::blocked_range<size_t>(0, cells.size()), [&](const auto& r) {
+        if (progress) progress->tick(r.size());
         for (size_t i = r.begin(); i != r.end(); ++i) {
           const Coord& c = cells[i];
           // Centre of the cell spanning voxels [c*s, c*s + s - 1].
@@ -581,6 +591,7 @@ HullStats SparseVolume::carve_hull(const std::vector<SilhouetteObservation>& vie
         }
       });
     });
+    if (progress) progress->done();
     hs.cells_tested += cells.size();
     std::vector<Coord> next;
     for (size_t i = 0; i < cells.size(); ++i) {

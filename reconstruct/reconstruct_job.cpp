@@ -529,11 +529,9 @@ size_t cut_at_matte(ImageF& d, const ImageU8& matte, int stride) {
 
 std::vector<ImageF> all_camera_depths(const std::vector<View>& views, const CameraDepths& depth, int threads) {
   std::vector<ImageF> distance(views.size());
-  Progress progress("camera depth", views.size());
-  std::mutex progress_mutex;
+  SharedProgress progress("camera depth", views.size());
   parallel_for(int(views.size()), worker_count(threads), [&](int i) {
     distance[size_t(i)] = depth(views[size_t(i)].K, views[size_t(i)].world_from_camera);
-    const std::lock_guard<std::mutex> lock(progress_mutex);
     progress.tick();
   });
   progress.done();
@@ -897,6 +895,7 @@ Result<ReconstructSummary> run_reconstruct_job(const ReconstructJob& job) {
     // once are 4 bytes a pixel of every photo).
     std::vector<const ImageU8*> photos;
     std::vector<ImageU8> empty(views->size());
+    SharedProgress progress("backdrop: camera depth", views->size());
     parallel_for(int(views->size()), worker_count(job.threads), [&](int i) {
       const View& v = (*views)[size_t(i)];
       const ImageF made = job.textures ? ImageF{} : depth(v.K, v.world_from_camera);
@@ -904,7 +903,9 @@ Result<ReconstructSummary> run_reconstruct_job(const ReconstructJob& job) {
       ImageU8 e(d.width, d.height, 1);
       for (size_t p = 0; p < d.pixels(); ++p) e.data[p] = d.data[p] > 0 ? 0 : 255;
       empty[size_t(i)] = std::move(e);
+      progress.tick();
     });
+    progress.done();
     for (const View& v : *views) photos.push_back(&v.color);
     BackdropPlateResult pr = make_backdrop_plate(photos, empty, fit_background(in->s, *views));
     rep.counts["backdrop_plate_kept_share"] = pr.kept_share;
