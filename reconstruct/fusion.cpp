@@ -563,11 +563,18 @@ HullStats SparseVolume::carve_hull(const std::vector<SilhouetteObservation>& vie
       for (int y = floordiv(lo.y(), s); y <= floordiv(hi.y(), s); ++y)
         for (int z = floordiv(lo.z(), s); z <= floordiv(hi.z(), s); ++z) cells.emplace_back(x, y, z);
   }
+  // A cell whose window lies wholly inside the image and inside the
+  // silhouette in every view has children that every view keeps: a child's
+  // centre lies half the parent's radius from the parent's, so it projects
+  // inside the parent's window (for any lens whose magnification does not
+  // double across a cell), onto foreground. They are kept without a test.
+  enum : uint8_t { kCarve, kKept, kInterior };
+  std::vector<uint8_t> interior(cells.size(), 0);  // the cell's parent was kInterior
   for (int level = top; level >= 0; --level) {
     const int s = 1 << level;
     const double size = m.voxel * s;
     const double radius = 0.5 * std::sqrt(3.0) * size;
-    std::vector<uint8_t> keep(cells.size(), 1);
+    std::vector<uint8_t> keep(cells.size(), kKept);
     // A line for the levels that take a while only (a million cells: some
     // seconds); the coarse ones pass in milliseconds.
     std::optional<SharedProgress> progress;
@@ -576,34 +583,51 @@ HullStats SparseVolume::carve_hull(const std::vector<SilhouetteObservation>& vie
       tbb::parallel_for(tbb::blocked_range<size_t>(0, cells.size()), [&](const auto& r) {
         if (progress) progress->tick(r.size());
         for (size_t i = r.begin(); i != r.end(); ++i) {
+          if (interior[i]) {
+            keep[i] = kInterior;
+            continue;
+          }
           const Coord& c = cells[i];
           // Centre of the cell spanning voxels [c*s, c*s + s - 1].
           const Eigen::Vector3d centre =
               (Eigen::Vector3d(c.x(), c.y(), c.z()) * s + Eigen::Vector3d::Constant(0.5 * (s - 1))) * m.voxel;
+          bool inside_all = level > 0;  // the finest level has no children to spare
           for (const auto& v : vd) {
             auto win = footprint(*v.K, v.cam_from_world * centre, radius);
-            if (!win) continue;  // the camera is at the cell: no verdict
+            if (!win) {  // the camera is at the cell: no verdict
+              inside_all = false;
+              continue;
+            }
+            if (inside_all && v.table.all(win->x0, win->y0, win->x1, win->y1)) continue;
+            inside_all = false;
             if (!v.table.any(win->x0, win->y0, win->x1, win->y1)) {
-              keep[i] = 0;
+              keep[i] = kCarve;
               break;
             }
           }
+          if (keep[i] == kKept && inside_all) keep[i] = kInterior;
         }
       });
     });
     if (progress) progress->done();
-    hs.cells_tested += cells.size();
+    const size_t untested = size_t(std::count(interior.begin(), interior.end(), uint8_t(1)));
+    hs.cells_tested += cells.size() - untested;
+    hs.cells_interior += untested;
     std::vector<Coord> next;
+    std::vector<uint8_t> next_interior;
     for (size_t i = 0; i < cells.size(); ++i) {
-      if (!keep[i]) continue;
+      if (keep[i] == kCarve) continue;
       if (level == 0) {
         next.push_back(cells[i]);
         continue;
       }
-      for (int k = 0; k < 8; ++k)
+      for (int k = 0; k < 8; ++k) {
         next.emplace_back(cells[i].x() * 2 + (k & 1), cells[i].y() * 2 + ((k >> 1) & 1), cells[i].z() * 2 + ((k >> 2) & 1));
+        next_interior.push_back(keep[i] == kInterior);
+      }
     }
     cells.swap(next);
+    interior.swap(next_interior);
   }
   // Crop to the box at the finest level.
   std::erase_if(cells, [&](const Coord& c) { return !box.contains(m.centre(c)) || !m.in_crop(m.centre(c)); });

@@ -69,6 +69,7 @@ struct FusionStats {
 
 struct HullStats {
   size_t cells_tested = 0;      // all levels
+  size_t cells_interior = 0;    // kept untested: their parent lay wholly inside every silhouette
   size_t hull_voxels = 0;       // finest level, inside every silhouette
   size_t carved_by_depth = 0;   // free space in front of depth
   size_t solid_by_depth = 0;    // behind depth in every view that sees it

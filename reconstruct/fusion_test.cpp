@@ -402,14 +402,15 @@ TEST(CameraTexture, RgbazRoundTrip) {
   fs::remove(p);
 }
 
-// The hull's window test against reading every pixel: sparse and dense
+// The hull's window tests (any foreground; only foreground) against reading
+// every pixel: sparse and dense
 // masks of sizes that are and are not multiples of the block, windows
 // inside, across the edges, wholly outside, one pixel and the whole image,
 // a mask of three channels (its first read).
 TEST(MaskWindows, AnswersAsReadingEveryPixelDoes) {
   std::mt19937 gen(5);
   for (const auto& [w, h, ch, density] : std::vector<std::tuple<int, int, int, double>>{
-           {37, 29, 1, 0.002}, {64, 48, 1, 0.02}, {33, 17, 3, 0.2}, {8, 5, 1, 0.05}, {1, 1, 1, 1.0}}) {
+           {37, 29, 1, 0.002}, {64, 48, 1, 0.02}, {33, 17, 3, 0.2}, {8, 5, 1, 0.05}, {1, 1, 1, 1.0}, {41, 23, 1, 0.995}}) {
     ImageU8 m(w, h, ch);
     std::bernoulli_distribution fg(density);
     for (size_t p = 0; p < m.pixels(); ++p) m.data[p * size_t(ch)] = fg(gen) ? uint8_t(1 + gen() % 255) : 0;
@@ -418,6 +419,13 @@ TEST(MaskWindows, AnswersAsReadingEveryPixelDoes) {
       for (size_t p = 0; p < m.pixels(); ++p) m.data[p * 3 + 1] = 255;
     }
     const MaskWindows t(m);
+    auto brute_all = [&](int x0, int y0, int x1, int y1) {
+      if (x0 < 0 || y0 < 0 || x1 >= w || y1 >= h || x0 > x1 || y0 > y1) return false;
+      for (int y = y0; y <= y1; ++y)
+        for (int x = x0; x <= x1; ++x)
+          if (!m.at(x, y, 0)) return false;
+      return true;
+    };
     auto brute = [&](int x0, int y0, int x1, int y1) {
       for (int y = std::max(y0, 0); y <= std::min(y1, h - 1); ++y)
         for (int x = std::max(x0, 0); x <= std::min(x1, w - 1); ++x)
@@ -425,13 +433,16 @@ TEST(MaskWindows, AnswersAsReadingEveryPixelDoes) {
       return false;
     };
     std::uniform_int_distribution<int> cx(-6, w + 5), cy(-6, h + 5);
-    int found = 0;
+    int found = 0, all_found = 0;
     for (int k = 0; k < 20000; ++k) {
       int x0 = cx(gen), x1 = cx(gen), y0 = cy(gen), y1 = cy(gen);
       if (k % 3 == 0) x1 = x0 + int(gen() % 3), y1 = y0 + int(gen() % 3);  // small windows, as the finest cells'
       const bool want = brute(x0, y0, x1, y1);
       found += want;
       ASSERT_EQ(t.any(x0, y0, x1, y1), want) << w << "x" << h << " [" << x0 << "," << x1 << "] x [" << y0 << "," << y1 << "]";
+      const bool full = brute_all(x0, y0, x1, y1);
+      all_found += full;
+      ASSERT_EQ(t.all(x0, y0, x1, y1), full) << w << "x" << h << " [" << x0 << "," << x1 << "] x [" << y0 << "," << y1 << "]";
     }
     EXPECT_EQ(t.any(0, 0, w - 1, h - 1), brute(0, 0, w - 1, h - 1));
     EXPECT_FALSE(t.any(w, 0, w + 3, h - 1));
@@ -439,5 +450,8 @@ TEST(MaskWindows, AnswersAsReadingEveryPixelDoes) {
       EXPECT_GT(20000 - found, 0);  // some windows were empty
     }
     EXPECT_GT(found, 0);
+    if (density > 0.1) {
+      EXPECT_GT(all_found, 0);  // some windows were all foreground
+    }
   }
 }

@@ -1,5 +1,5 @@
-// Whether a silhouette mask has any foreground in a pixel window, the visual
-// hull's test of each cell against each view, answered exactly in O(1) for
+// Whether a silhouette mask has any foreground in a pixel window (the visual
+// hull's test of each cell against each view), or only foreground, answered exactly in O(1) for
 // the part of the window made of whole 4 x 4 blocks (a summed-area table of
 // the blocks' foreground counts) and by reading the mask for the strips at
 // the window's edges. A table per pixel would be 4 bytes a pixel, kept for
@@ -50,6 +50,19 @@ class MaskWindows {
            scan(ix1 + 1, iy0, x1, iy1);
   }
 
+  // Foreground everywhere in [x0, x1] x [y0, y1], a window wholly inside
+  // the image (false for one that is not).
+  bool all(int x0, int y0, int x1, int y1) const {
+    if (x0 < 0 || y0 < 0 || x1 >= w_ || y1 >= h_ || x0 > x1 || y0 > y1) return false;
+    const int bx0 = (x0 + kBlock - 1) / kBlock, by0 = (y0 + kBlock - 1) / kBlock;
+    const int bx1 = (x1 + 1) / kBlock - 1, by1 = (y1 + 1) / kBlock - 1;
+    if (bx0 > bx1 || by0 > by1) return !scan_empty(x0, y0, x1, y1);
+    if (blocks(bx0, by0, bx1, by1) != (bx1 - bx0 + 1) * (by1 - by0 + 1) * kBlock * kBlock) return false;
+    const int ix0 = bx0 * kBlock, iy0 = by0 * kBlock, ix1 = (bx1 + 1) * kBlock - 1, iy1 = (by1 + 1) * kBlock - 1;
+    return !(scan_empty(x0, y0, x1, iy0 - 1) || scan_empty(x0, iy1 + 1, x1, y1) || scan_empty(x0, iy0, ix0 - 1, iy1) ||
+             scan_empty(ix1 + 1, iy0, x1, iy1));
+  }
+
   size_t bytes() const { return sum_.size() * sizeof(int32_t); }
 
  private:
@@ -62,6 +75,13 @@ class MaskWindows {
     for (int y = y0; y <= y1; ++y)
       for (int x = x0; x <= x1; ++x)
         if (at(x, y)) return true;
+    return false;
+  }
+
+  bool scan_empty(int x0, int y0, int x1, int y1) const {
+    for (int y = y0; y <= y1; ++y)
+      for (int x = x0; x <= x1; ++x)
+        if (!at(x, y)) return true;
     return false;
   }
 

@@ -413,6 +413,7 @@ void carve_hull(const ReconstructJob& job, const GeometryPlan& plan, const std::
   const HullStats hs = volume.carve_hull(sil, both ? depth_obs : std::vector<DepthObservation>{}, box, job.threads);
   rep.counts["hull_voxels"] = double(hs.hull_voxels);
   rep.counts["hull_cells_tested"] = double(hs.cells_tested);
+  rep.skipped["hull_cells_inside_every_silhouette_untested"] = double(hs.cells_interior);
   rep.counts["fuzzy_voxels"] = double(hs.fuzzy_voxels);
   if (both) {
     rep.skipped["hull_voxels_free_by_depth"] = double(hs.carved_by_depth);
