@@ -643,8 +643,11 @@ HullStats SparseVolume::carve_hull(const std::vector<SilhouetteObservation>& vie
     const double margin = std::max(m.tau, radius), hidden = radius;
     std::vector<Eigen::Isometry3d> cam_from_world;
     for (const auto& d : depth) cam_from_world.push_back(d.world_from_camera.inverse());
+    std::optional<SharedProgress> progress;
+    if (cells.size() >= 1000000) progress.emplace("hull: depth", cells.size());
     in_arena(threads, [&] {
       tbb::parallel_for(tbb::blocked_range<size_t>(0, cells.size()), [&](const auto& r) {
+        if (progress) progress->tick(r.size());
         auto acc = m.tsdf->getConstAccessor();
         for (size_t i = r.begin(); i != r.end(); ++i) {
           openvdb::Vec3s val;
@@ -678,10 +681,10 @@ HullStats SparseVolume::carve_hull(const std::vector<SilhouetteObservation>& vie
             else if (pc.z() - hidden > hi_d * depth[k].unit_m) ++behind;
           }
           verdict[i] = free ? kFree : (seen > 0 && behind == seen) ? kSolid : kKeep;
-
         }
       });
     });
+    if (progress) progress->done();
   }
   m.hull = openvdb::MaskGrid::create(false);
   m.fuzzy = openvdb::MaskGrid::create(false);
