@@ -39,28 +39,14 @@ class MaskWindows {
   // Any foreground in [x0, x1] x [y0, y1] (inclusive, clipped to the image).
   bool any(int x0, int y0, int x1, int y1) const {
     x0 = std::max(x0, 0), y0 = std::max(y0, 0), x1 = std::min(x1, w_ - 1), y1 = std::min(y1, h_ - 1);
-    if (x0 > x1 || y0 > y1) return false;
-    // The whole blocks inside the window (each lies inside the image).
-    const int bx0 = (x0 + kBlock - 1) / kBlock, by0 = (y0 + kBlock - 1) / kBlock;
-    const int bx1 = (x1 + 1) / kBlock - 1, by1 = (y1 + 1) / kBlock - 1;
-    if (bx0 > bx1 || by0 > by1) return scan(x0, y0, x1, y1);
-    if (blocks(bx0, by0, bx1, by1) > 0) return true;
-    const int ix0 = bx0 * kBlock, iy0 = by0 * kBlock, ix1 = (bx1 + 1) * kBlock - 1, iy1 = (by1 + 1) * kBlock - 1;
-    return scan(x0, y0, x1, iy0 - 1) || scan(x0, iy1 + 1, x1, y1) || scan(x0, iy0, ix0 - 1, iy1) ||
-           scan(ix1 + 1, iy0, x1, iy1);
+    return x0 <= x1 && y0 <= y1 && holds(true, x0, y0, x1, y1);
   }
 
   // Foreground everywhere in [x0, x1] x [y0, y1], a window wholly inside
   // the image (false for one that is not).
   bool all(int x0, int y0, int x1, int y1) const {
     if (x0 < 0 || y0 < 0 || x1 >= w_ || y1 >= h_ || x0 > x1 || y0 > y1) return false;
-    const int bx0 = (x0 + kBlock - 1) / kBlock, by0 = (y0 + kBlock - 1) / kBlock;
-    const int bx1 = (x1 + 1) / kBlock - 1, by1 = (y1 + 1) / kBlock - 1;
-    if (bx0 > bx1 || by0 > by1) return !scan_empty(x0, y0, x1, y1);
-    if (blocks(bx0, by0, bx1, by1) != (bx1 - bx0 + 1) * (by1 - by0 + 1) * kBlock * kBlock) return false;
-    const int ix0 = bx0 * kBlock, iy0 = by0 * kBlock, ix1 = (bx1 + 1) * kBlock - 1, iy1 = (by1 + 1) * kBlock - 1;
-    return !(scan_empty(x0, y0, x1, iy0 - 1) || scan_empty(x0, iy1 + 1, x1, y1) || scan_empty(x0, iy0, ix0 - 1, iy1) ||
-             scan_empty(ix1 + 1, iy0, x1, iy1));
+    return !holds(false, x0, y0, x1, y1);
   }
 
   size_t bytes() const { return sum_.size() * sizeof(int32_t); }
@@ -71,18 +57,23 @@ class MaskWindows {
     auto s = [&](int bx, int by) { return sum_[size_t(by) * size_t(bw_ + 1) + size_t(bx)]; };
     return s(bx1 + 1, by1 + 1) - s(bx0, by1 + 1) - s(bx1 + 1, by0) + s(bx0, by0);
   }
-  bool scan(int x0, int y0, int x1, int y1) const {
-    for (int y = y0; y <= y1; ++y)
-      for (int x = x0; x <= x1; ++x)
-        if (at(x, y)) return true;
-    return false;
-  }
-
-  bool scan_empty(int x0, int y0, int x1, int y1) const {
-    for (int y = y0; y <= y1; ++y)
-      for (int x = x0; x <= x1; ++x)
-        if (!at(x, y)) return true;
-    return false;
+  // Whether a pixel of the window (inside the image) is foreground (`fg`)
+  // or background (!fg): the whole blocks inside it from the table, the
+  // strips at its edges read.
+  bool holds(bool fg, int x0, int y0, int x1, int y1) const {
+    auto scan = [&](int ax, int ay, int bx, int by) {
+      for (int y = ay; y <= by; ++y)
+        for (int x = ax; x <= bx; ++x)
+          if ((at(x, y) != 0) == fg) return true;
+      return false;
+    };
+    const int bx0 = (x0 + kBlock - 1) / kBlock, by0 = (y0 + kBlock - 1) / kBlock;
+    const int bx1 = (x1 + 1) / kBlock - 1, by1 = (y1 + 1) / kBlock - 1;
+    if (bx0 > bx1 || by0 > by1) return scan(x0, y0, x1, y1);
+    const int32_t count = blocks(bx0, by0, bx1, by1);
+    if (fg ? count > 0 : count < (bx1 - bx0 + 1) * (by1 - by0 + 1) * kBlock * kBlock) return true;
+    const int ix0 = bx0 * kBlock, iy0 = by0 * kBlock, ix1 = (bx1 + 1) * kBlock - 1, iy1 = (by1 + 1) * kBlock - 1;
+    return scan(x0, y0, x1, iy0 - 1) || scan(x0, iy1 + 1, x1, y1) || scan(x0, iy0, ix0 - 1, iy1) || scan(ix1 + 1, iy0, x1, iy1);
   }
 
   const ImageU8* m_;
