@@ -107,6 +107,10 @@ void add_reconstruct(CLI::App& app, Chosen& chosen) {
   sub->add_flag_callback("--no-textures", [&job] { job.textures = false; },
                          "do not write the per-camera RGBA + depth textures (the cameras' depth is then cast only where "
                          "the facets' visibility needs it)");
+  sub->add_flag("--photo-depth", job.photo_depth,
+               "captures without depth (--geometry hull): search each camera's depth behind the visual hull by "
+               "photo-consistency (normalized cross-correlation with its nearest cameras) and carve the hull where "
+               "two cameras show it empty: concavities no silhouette shows");
   sub->add_option("--fit", job.fit_seconds,
                   "seconds to fit billboards to the training photos (opacity, footprint, offset and view-dependent "
                   "colour per facet, by differentiable rasterization; writes splats.bin and fit.csv, the training "

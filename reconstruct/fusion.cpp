@@ -533,6 +533,66 @@ void SparseVolume::integrate(const std::vector<DepthObservation>& views, int thr
   views_done();
 }
 
+namespace {
+
+// One voxel against depth views: in how many is its footprint wholly
+// measured (`seen`), in front of every sample by `margin` (`free`), wholly
+// behind all of them by `hidden` (`behind`). A footprint with a hole or
+// leaving the image gives no verdict. Stops once `enough_free` views say free.
+struct DepthCounts {
+  int free = 0, behind = 0, seen = 0;
+};
+DepthCounts depth_counts(const std::vector<DepthObservation>& depth, const std::vector<Eigen::Isometry3d>& cam_from_world,
+                         const Eigen::Vector3d& centre, double radius, double margin, double hidden, int enough_free) {
+  DepthCounts n;
+  for (size_t k = 0; k < depth.size() && n.free < enough_free; ++k) {
+    const ImageU16* im = depth[k].depth;
+    if (!im || im->empty()) continue;
+    const Eigen::Vector3d pc = cam_from_world[k] * centre;
+    auto win = footprint(depth[k].intrinsics, pc, radius);
+    if (!win || !win->inside(im->width, im->height)) continue;
+    uint16_t lo_d = 0xffff, hi_d = 0;
+    bool hole = false;
+    for (int y = win->y0; y <= win->y1 && !hole; ++y)
+      for (int x = win->x0; x <= win->x1; ++x) {
+        const uint16_t d = im->data[size_t(y) * im->width + x];
+        if (d == 0) {
+          hole = true;
+          break;
+        }
+        lo_d = std::min(lo_d, d), hi_d = std::max(hi_d, d);
+      }
+    if (hole) continue;
+    ++n.seen;
+    if (pc.z() + margin < lo_d * depth[k].unit_m) ++n.free;
+    else if (pc.z() - hidden > hi_d * depth[k].unit_m) ++n.behind;
+  }
+  return n;
+}
+
+// Without depth the evidence is the hull's boundary: voxels beside empty space.
+void mark_hull_boundary(SparseVolume::Impl& m) {
+  m.fuzzy->clear();
+  auto hacc = m.hull->getConstAccessor();
+  auto facc = m.fuzzy->getAccessor();
+  for (auto it = m.hull->cbeginValueOn(); it; ++it) {
+    const Coord c = it.getCoord();
+    bool boundary = false;
+    for (int a = 0; a < 3 && !boundary; ++a)
+      for (int sgn : {-1, 1}) {
+        Coord n = c;
+        n[a] += sgn;
+        if (!hacc.isValueOn(n)) {
+          boundary = true;
+          break;
+        }
+      }
+    if (boundary) facc.setValueOn(c);
+  }
+}
+
+}  // namespace
+
 HullStats SparseVolume::carve_hull(const std::vector<SilhouetteObservation>& views,
                                    const std::vector<DepthObservation>& depth, const Eigen::AlignedBox3d& box,
                                    int threads) {
@@ -655,32 +715,8 @@ HullStats SparseVolume::carve_hull(const std::vector<SilhouetteObservation>& vie
             verdict[i] = kObserved;
             continue;
           }
-          const Eigen::Vector3d centre = m.centre(cells[i]);
-          int behind = 0, seen = 0;
-          bool free = false;
-          for (size_t k = 0; k < depth.size() && !free; ++k) {
-            const ImageU16* im = depth[k].depth;
-            if (!im || im->empty()) continue;
-            const Eigen::Vector3d pc = cam_from_world[k] * centre;
-            auto win = footprint(depth[k].intrinsics, pc, radius);
-            if (!win || !win->inside(im->width, im->height)) continue;
-            uint16_t lo_d = 0xffff, hi_d = 0;
-            bool hole = false;
-            for (int y = win->y0; y <= win->y1 && !hole; ++y)
-              for (int x = win->x0; x <= win->x1; ++x) {
-                const uint16_t d = im->data[size_t(y) * im->width + x];
-                if (d == 0) {
-                  hole = true;
-                  break;
-                }
-                lo_d = std::min(lo_d, d), hi_d = std::max(hi_d, d);
-              }
-            if (hole) continue;  // no verdict from this view
-            ++seen;
-            if (pc.z() + margin < lo_d * depth[k].unit_m) free = true;
-            else if (pc.z() - hidden > hi_d * depth[k].unit_m) ++behind;
-          }
-          verdict[i] = free ? kFree : (seen > 0 && behind == seen) ? kSolid : kKeep;
+          const DepthCounts n = depth_counts(depth, cam_from_world, m.centre(cells[i]), radius, margin, hidden, 1);
+          verdict[i] = n.free > 0 ? kFree : (n.seen > 0 && n.behind == n.seen) ? kSolid : kKeep;
         }
       });
     });
@@ -700,25 +736,38 @@ HullStats SparseVolume::carve_hull(const std::vector<SilhouetteObservation>& vie
       default: hacc.setValueOn(cells[i]); facc.setValueOn(cells[i]);
     }
   }
-  if (m.hull_only) {
-    // Without depth the evidence is the hull's boundary: voxels beside empty space.
-    m.fuzzy->clear();
-    for (const Coord& c : cells) {
-      bool boundary = false;
-      for (int a = 0; a < 3 && !boundary; ++a)
-        for (int sgn : {-1, 1}) {
-          Coord n = c;
-          n[a] += sgn;
-          if (!hacc.isValueOn(n)) {
-            boundary = true;
-            break;
-          }
-        }
-      if (boundary) facc.setValueOn(c);
-    }
-  }
+  if (m.hull_only) mark_hull_boundary(m);
   hs.fuzzy_voxels = m.fuzzy->activeVoxelCount();
   return hs;
+}
+
+size_t SparseVolume::carve_free(const std::vector<DepthObservation>& depth, int min_views, double margin_m, int threads) {
+  Impl& m = *impl_;
+  if (!m.hull || depth.empty()) return 0;
+  std::vector<Coord> cells;
+  cells.reserve(m.hull->activeVoxelCount());
+  for (auto it = m.hull->cbeginValueOn(); it; ++it) cells.push_back(it.getCoord());
+  const double radius = 0.5 * std::sqrt(3.0) * m.voxel, margin = std::max(margin_m, radius);
+  std::vector<Eigen::Isometry3d> cam_from_world;
+  for (const auto& d : depth) cam_from_world.push_back(d.world_from_camera.inverse());
+  std::vector<uint8_t> free(cells.size(), 0);
+  in_arena(threads, [&] {
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, cells.size()), [&](const auto& r) {
+      for (size_t i = r.begin(); i != r.end(); ++i)
+        free[i] = depth_counts(depth, cam_from_world, m.centre(cells[i]), radius, margin, radius, min_views).free >= min_views;
+    });
+  });
+  size_t carved = 0;
+  auto hacc = m.hull->getAccessor();
+  auto facc = m.fuzzy->getAccessor();
+  for (size_t i = 0; i < cells.size(); ++i)
+    if (free[i]) {
+      hacc.setValueOff(cells[i]);
+      facc.setValueOff(cells[i]);
+      ++carved;
+    }
+  if (m.hull_only) mark_hull_boundary(m);
+  return carved;
 }
 
 std::vector<EvidenceVoxel> SparseVolume::evidence(double reliability_sigma_m) const {

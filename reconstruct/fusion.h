@@ -104,6 +104,15 @@ class SparseVolume {
                        const std::vector<DepthObservation>& depth, const Eigen::AlignedBox3d& box,
                        int threads = 0);
 
+  // Removes the hull voxels that at least `min_views` depth views show empty
+  // (in front of every sample of their footprint by `margin_m`, at least the
+  // voxel's half-diagonal; carve_hull's depth test uses the truncation
+  // distance) and, without depth fused, takes the boundary
+  // of what is left as the evidence again. Returns the voxels removed. For
+  // depth that comes after the hull: per-camera depth refined by photo-
+  // consistency (reconstruct/photo_depth.h).
+  size_t carve_free(const std::vector<DepthObservation>& depth, int min_views, double margin_m, int threads = 0);
+
   // Depth surface voxels (a sign change to a 6-neighbour observed on both sides,
   // the smaller |sdf| of the two), then fuzzy hull voxels (or, with no depth at
   // all, the hull's boundary voxels). `reliability_sigma_m`: the spread at which

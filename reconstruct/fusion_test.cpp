@@ -7,6 +7,7 @@
 #include <cmath>
 #include <filesystem>
 #include <numbers>
+#include <optional>
 #include <random>
 #include <unistd.h>
 
@@ -325,6 +326,107 @@ TEST(VisualHull, SphereSilhouettesAndDepthCarving) {
   const HullStats bs = both.carve_hull(sil, d, box);
   EXPECT_GT(bs.solid_by_depth, 1000u);
   EXPECT_LT(bs.fuzzy_voxels, bs.hull_voxels / 20);
+}
+
+namespace {
+
+// A cube with a square pit in its top face (the -y side, where the cameras
+// are): the distance along a ray into it, 0 where it misses.
+constexpr double kHalf = 0.04, kPitHalf = 0.02, kPitDepth = 0.03;
+bool in_pit(const Eigen::Vector3d& p) {
+  const Eigen::Vector3d q = p - kCentre;
+  return std::abs(q.x()) < kPitHalf && std::abs(q.z()) < kPitHalf && q.y() < -kHalf + kPitDepth;
+}
+// Entry and exit of a ray into an axis-aligned box about kCentre.
+std::optional<std::pair<double, double>> slab(const Eigen::Vector3d& o, const Eigen::Vector3d& d, const Eigen::Vector3d& lo,
+                                              const Eigen::Vector3d& hi) {
+  double t0 = 0, t1 = 1e9;
+  for (int a = 0; a < 3; ++a) {
+    if (std::abs(d[a]) < 1e-12) {
+      if (o[a] < lo[a] || o[a] > hi[a]) return std::nullopt;
+      continue;
+    }
+    double u = (lo[a] - o[a]) / d[a], v = (hi[a] - o[a]) / d[a];
+    if (u > v) std::swap(u, v);
+    t0 = std::max(t0, u), t1 = std::min(t1, v);
+  }
+  if (t0 > t1) return std::nullopt;
+  return std::make_pair(t0, t1);
+}
+ImageU16 pit_depth(const Intrinsics& K, const Eigen::Isometry3d& world_from_camera) {
+  ImageU16 out(K.width, K.height, 1, 0);
+  const Eigen::Vector3d h(kHalf, kHalf, kHalf);
+  const Eigen::Vector3d pit_lo = kCentre + Eigen::Vector3d(-kPitHalf, -kHalf - 0.01, -kPitHalf),
+                        pit_hi = kCentre + Eigen::Vector3d(kPitHalf, -kHalf + kPitDepth, kPitHalf);
+  const Eigen::Vector3d o = world_from_camera.translation();
+  for (int y = 0; y < K.height; ++y)
+    for (int x = 0; x < K.width; ++x) {
+      const Eigen::Vector3d rc = K.ray({double(x), double(y)})->normalized();
+      const Eigen::Vector3d d = world_from_camera.linear() * rc;
+      auto b = slab(o, d, kCentre - h, kCentre + h);
+      if (!b) continue;
+      double t = b->first;
+      if (auto p = slab(o, d, pit_lo, pit_hi); p && p->first <= t + 1e-12 && t < p->second) t = p->second;
+      if (t >= b->second) continue;  // through the pit and out
+      out.at(x, y) = uint16_t(std::lround(t * rc.z() / 1e-4));
+    }
+  return out;
+}
+
+}  // namespace
+
+// Depth that comes after the hull (photo-consistency's): no silhouette shows
+// a pit in a cube's top face, so the hull fills it; the same cameras' depth
+// shows it empty and carves it where two of them agree, and nothing of the
+// cube goes. One camera alone carves nothing.
+TEST(VisualHull, CarveFreeByDepthAfterTheHull) {
+  std::vector<Eigen::Isometry3d> poses;
+  for (int i = 0; i < 12; ++i) poses.push_back(ring_pose(30.0 * i, 10));
+  for (int i = 0; i < 8; ++i) poses.push_back(ring_pose(45.0 * i + 20, 55));
+  std::vector<ImageU16> depth;
+  std::vector<ImageU8> masks;
+  for (const auto& T : poses) {
+    depth.push_back(pit_depth(camera(), T));
+    ImageU8 m(camera().width, camera().height, 1, 0);
+    for (size_t i = 0; i < m.pixels(); ++i) m.data[i] = depth.back().data[i] ? 255 : 0;
+    masks.push_back(std::move(m));
+  }
+  std::vector<SilhouetteObservation> sil;
+  std::vector<DepthObservation> d;
+  for (size_t i = 0; i < poses.size(); ++i) {
+    sil.push_back({&masks[i], camera(), poses[i]});
+    d.push_back({&depth[i], 1e-4, camera(), poses[i]});
+  }
+  const double w = 0.002;
+  const Eigen::AlignedBox3d box(kCentre - Eigen::Vector3d::Constant(0.06), kCentre + Eigen::Vector3d::Constant(0.06));
+  // Hull voxels in the pit (by a voxel's margin), and in the cube off the pit.
+  auto count = [&](const SparseVolume& v) {
+    std::pair<size_t, size_t> n{0, 0};
+    for (const auto& c : v.fit_candidates(0)) {
+      const Eigen::Vector3d p = c.cast<double>(), q = p - kCentre;
+      const bool pit = std::abs(q.x()) < kPitHalf - w && std::abs(q.z()) < kPitHalf - w && q.y() < -kHalf + kPitDepth - w;
+      const bool solid = (q.cwiseAbs().array() < kHalf - w).all() && !in_pit(p) &&
+                         !(std::abs(q.x()) < kPitHalf + w && std::abs(q.z()) < kPitHalf + w && q.y() < -kHalf + kPitDepth + w);
+      n.first += pit, n.second += solid;
+    }
+    return n;
+  };
+  SparseVolume one(w, 2 * w);
+  one.carve_hull(sil, {}, box);
+  const auto before = count(one);
+  EXPECT_GT(before.first, 1000u) << "the hull fills the pit";
+  EXPECT_EQ(one.carve_free({d[12]}, 2, 2 * w), 0u) << "one view never carves when two are asked for";
+
+  SparseVolume two(w, 2 * w);
+  two.carve_hull(sil, {}, box);
+  const size_t carved = two.carve_free(d, 2, 2 * w);
+  const auto after = count(two);
+  // Not all: within the truncation distance of the floor, and where a
+  // voxel's footprint takes in the rim, no view shows it empty.
+  EXPECT_GE(carved, before.first / 2);
+  EXPECT_LT(after.first, before.first / 2) << "most of the pit is carved";
+  EXPECT_EQ(after.second, before.second) << "nothing of the cube is carved";
+  for (const auto& e : two.evidence(w)) EXPECT_TRUE(e.fuzzy);
 }
 
 TEST(Facets, OccludedCameraAndUnseenFacet) {

@@ -26,6 +26,7 @@
 #include "reconstruct/microfacets.h"
 #include "reconstruct/model.h"
 #include "reconstruct/octree.h"
+#include "reconstruct/photo_depth.h"
 #include "reconstruct/poses.h"
 #include "reconstruct/rig_eval.h"
 #include "reconstruct/splat_composite.h"
@@ -419,6 +420,67 @@ void carve_hull(const ReconstructJob& job, const GeometryPlan& plan, const std::
     rep.skipped["hull_voxels_free_by_depth"] = double(hs.carved_by_depth);
     rep.skipped["hull_voxels_inside_by_depth"] = double(hs.solid_by_depth);
   }
+}
+
+// Captures without depth: each camera's depth searched behind the hull by
+// photo-consistency (reconstruct/photo_depth.h), the hull's surface drawn into
+// the camera as where the search starts, and the hull carved where two
+// cameras' refined depth shows it empty.
+void carve_by_photo_depth(const ReconstructJob& job, const GeometryPlan& plan, const std::vector<View>& views,
+                          const SceneExtent& e, double w0, SparseVolume& volume, Report& rep) {
+  const Mesh hull = volume.surface_mesh(volume.evidence(w0 / 4));
+  const MeshRasterizer raster(hull, MeshRasterizer::Faces::kInwardWound);
+  std::vector<PhotoView> pv;
+  for (size_t i = 0; i < views.size(); ++i) pv.push_back({&views[i].color, &plan.masks[i], views[i].K, views[i].world_from_camera});
+  PhotoDepthParams p;
+  p.step_m = w0;
+  // 32 voxels behind the hull (at most a quarter of the object's box): on the
+  // rig bunny 16 give 90.5 % of the facets within w of the truth, 32 90.8 %,
+  // a quarter of the box (64) 90.1 %, in 3.8, 5.6 and 9.7 s; the dino's step
+  // took 61 s with a quarter of its box, 8.6 s with 32 voxels.
+  p.range_m = std::min(32 * w0, 0.25 * e.box.sizes().maxCoeff());
+  std::vector<ImageU16> depth(views.size());
+  std::vector<double> unit(views.size(), 1e-4);
+  std::vector<PhotoDepthStats> stats(views.size());
+  SharedProgress progress("photo depth", views.size());
+  parallel_for(int(views.size()), worker_count(job.threads), [&](int i) {
+    const View& v = views[size_t(i)];
+    const ImageF h = raster.distance_image(v.K, v.world_from_camera);
+    const ImageF d = photo_consistent_depth(pv, size_t(i), photo_neighbours(pv, size_t(i), e.centre, p), h, p, &stats[size_t(i)]);
+    // Distance along the ray -> depth along the axis, in steps that span the farthest.
+    float far = 0;
+    for (float x : d.data) far = std::max(far, x);
+    unit[size_t(i)] = std::max(1e-6, double(far) / 60000.0);
+    ImageU16 z(d.width, d.height, 1, 0);
+    for (int y = 0; y < d.height; ++y)
+      for (int x = 0; x < d.width; ++x) {
+        const float dist = d.at(x, y);
+        if (!(dist > 0)) continue;
+        if (auto r = v.K.ray({double(x), double(y)}))
+          z.at(x, y) = uint16_t(std::clamp(std::lround(dist / r->norm() / unit[size_t(i)]), 1L, 65535L));
+      }
+    depth[size_t(i)] = std::move(z);
+    progress.tick();
+  });
+  progress.done();
+  PhotoDepthStats all;
+  for (const auto& s : stats) all += s;
+  std::vector<DepthObservation> obs;
+  for (size_t i = 0; i < views.size(); ++i) obs.push_back({&depth[i], unit[i], views[i].K, views[i].world_from_camera});
+  // A voxel goes when it lies in front of both cameras' depth by its own size
+  // (the truncation distance, 4 w, carved a fifth as much of the rig bunny's
+  // hull: 1,509 against 7,598 voxels, its facets within w of the truth 79 %
+  // against 90 %).
+  const size_t carved = volume.carve_free(obs, 2, w0, job.threads);
+  rep.counts["photo_depth_pixels_on_hull"] = double(all.pixels_on_hull);
+  rep.counts["photo_depth_pixels_at_hull"] = double(all.pixels_at_hull);
+  rep.counts["photo_depth_pixels_behind_hull"] = double(all.pixels_behind_hull);
+  rep.counts["photo_depth_planes"] = double(all.planes);
+  rep.errors["photo_depth_mean_shift_mm"] = all.pixels_behind_hull ? 1000 * all.shift_sum_m / double(all.pixels_behind_hull) : 0;
+  rep.skipped["photo_depth_pixels_untextured"] = double(all.pixels_untextured);
+  rep.skipped["photo_depth_pixels_unmatched"] = double(all.pixels_unmatched);
+  rep.skipped["photo_depth_pixels_ambiguous"] = double(all.pixels_ambiguous);
+  rep.counts["hull_voxels_carved_by_photo_depth"] = double(carved);
 }
 
 Result<OctreePart> build_octree_part(const SparseVolume& volume, double w0, const fs::path& out) {
@@ -829,6 +891,12 @@ Result<ReconstructSummary> run_reconstruct_job(const ReconstructJob& job) {
   sum.seconds_fusion = timer.lap("fusion");
   if (plan->uses_hull()) carve_hull(job, *plan, *views, depth_obs, extent->box, volume, rep);
   timer.lap("hull");
+  if (job.photo_depth && plan->mode == Geometry::hull) {
+    carve_by_photo_depth(job, *plan, *views, *extent, w0, volume, rep);
+    timer.lap("photo_depth");
+  } else if (job.photo_depth) {
+    rep.skipped["photo_depth_with_depth_from_the_sensor"] = 1;
+  }
   // The depth images and silhouettes are not read again: let them go (on a
   // 200-photo capture at 12 MP they are 7 GB of the job's memory).
   depth_obs = {};

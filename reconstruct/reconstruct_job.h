@@ -54,6 +54,9 @@ struct ReconstructJob {
   double truncation_voxels = 4;       // tau in voxels
   bool per_region = true;             // unreliable / fuzzy regions get 2x larger facets
   bool textures = true;               // write cameras/NNNN.exr
+  // Captures without depth: each camera's depth searched behind the hull by
+  // photo-consistency, carving what it shows empty (reconstruct/photo_depth.h).
+  bool photo_depth = false;
   // > 0: fit billboards to the photos for this many seconds (splats.bin;
   // reconstruct/splat_fit.h), starting from the hull's voxels and the
   // fused surface's band; 0: no fit.
