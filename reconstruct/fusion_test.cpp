@@ -16,33 +16,13 @@
 #include "reconstruct/fusion.h"
 #include "reconstruct/mask_windows.h"
 #include "reconstruct/microfacets.h"
+#include "reconstruct/ring_scene_test.h"
 
 using namespace s2r;
+using namespace s2r::ring_scene;
 namespace fs = std::filesystem;
 
 namespace {
-
-constexpr double kDeg = std::numbers::pi / 180;
-const Eigen::Vector3d kCentre(0.01, -0.02, 0.03);
-constexpr double kRadius = 0.05;
-
-Intrinsics camera() {
-  Intrinsics K;
-  K.width = 160, K.height = 120, K.fx = K.fy = 150, K.cx = 79.5, K.cy = 59.5;
-  return K;
-}
-
-// Camera on a ring of radius 0.3 m about kCentre (axis y), looking at it.
-Eigen::Isometry3d ring_pose(double angle_deg, double elevation_deg = 10) {
-  const double a = angle_deg * kDeg, e = elevation_deg * kDeg;
-  const Eigen::Vector3d eye = kCentre + 0.3 * Eigen::Vector3d(std::sin(a) * std::cos(e), -std::sin(e), -std::cos(a) * std::cos(e));
-  const Eigen::Vector3d z = (kCentre - eye).normalized();
-  const Eigen::Vector3d x = Eigen::Vector3d::UnitY().cross(z).normalized();
-  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.linear() << x, z.cross(x), z;
-  T.translation() = eye;
-  return T;
-}
 
 // Exact depth (z, 0.1 mm units) of the sphere.
 ImageU16 sphere_depth(const Intrinsics& K, const Eigen::Isometry3d& world_from_camera) {

@@ -9,31 +9,12 @@
 #include <numbers>
 
 #include "reconstruct/photo_depth.h"
+#include "reconstruct/ring_scene_test.h"
 
 using namespace s2r;
+using namespace s2r::ring_scene;
 
 namespace {
-
-constexpr double kDeg = std::numbers::pi / 180;
-const Eigen::Vector3d kCentre(0.01, -0.02, 0.03);
-constexpr double kRadius = 0.05;
-
-Intrinsics camera() {
-  Intrinsics K;
-  K.width = 160, K.height = 120, K.fx = K.fy = 150, K.cx = 79.5, K.cy = 59.5;
-  return K;
-}
-
-Eigen::Isometry3d ring_pose(double angle_deg) {
-  const double a = angle_deg * kDeg, e = 10 * kDeg;
-  const Eigen::Vector3d eye = kCentre + 0.3 * Eigen::Vector3d(std::sin(a) * std::cos(e), -std::sin(e), -std::cos(a) * std::cos(e));
-  const Eigen::Vector3d z = (kCentre - eye).normalized();
-  const Eigen::Vector3d x = Eigen::Vector3d::UnitY().cross(z).normalized();
-  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.linear() << x, z.cross(x), z;
-  T.translation() = eye;
-  return T;
-}
 
 // Value noise on a 3-mm lattice, trilinear: a texture fixed to the surface.
 double noise(const Eigen::Vector3d& p) {
