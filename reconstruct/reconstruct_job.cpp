@@ -476,7 +476,8 @@ void carve_by_photo_depth(const ReconstructJob& job, const GeometryPlan& plan, c
   rep.counts["photo_depth_pixels_at_hull"] = double(all.pixels_at_hull);
   rep.counts["photo_depth_pixels_behind_hull"] = double(all.pixels_behind_hull);
   rep.counts["photo_depth_planes"] = double(all.planes);
-  rep.errors["photo_depth_mean_shift_mm"] = all.pixels_behind_hull ? 1000 * all.shift_sum_m / double(all.pixels_behind_hull) : 0;
+  rep.counts["photo_depth_mean_shift_mm"] = all.pixels_behind_hull ? 1000 * all.shift_sum_m / double(all.pixels_behind_hull) : 0;
+  rep.skipped["photo_depth_pixels_window_across_the_silhouette"] = double(all.pixels_at_silhouette);
   rep.skipped["photo_depth_pixels_untextured"] = double(all.pixels_untextured);
   rep.skipped["photo_depth_pixels_unmatched"] = double(all.pixels_unmatched);
   rep.skipped["photo_depth_pixels_ambiguous"] = double(all.pixels_ambiguous);
