@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <numbers>
 
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
@@ -58,7 +59,7 @@ std::vector<size_t> photo_neighbours(const std::vector<PhotoView>& views, size_t
   std::vector<std::pair<double, size_t>> by_angle;
   for (size_t i = 0; i < views.size(); ++i) {
     if (i == ref) continue;
-    const double a = std::acos(std::clamp(d0.dot(dir(i)), -1.0, 1.0)) * 180.0 / M_PI;
+    const double a = std::acos(std::clamp(d0.dot(dir(i)), -1.0, 1.0)) * 180.0 / std::numbers::pi;
     if (a >= 1.0 && a <= p.max_angle_deg) by_angle.emplace_back(a, i);
   }
   std::sort(by_angle.begin(), by_angle.end());
