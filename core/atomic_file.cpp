@@ -135,10 +135,22 @@ Result<std::string> read_file(const fs::path& path) {
     if (!fs::exists(path, ec)) return fail(ErrorCode::not_found, "'" + path.string() + "': file not found");
     return fail(ErrorCode::io, "'" + path.string() + "': cannot open for reading");
   }
+  // A regular file is read in one piece into a string of its size (a
+  // stream copied through a stringstream pays for every byte three times);
+  // anything else (a pipe, a file still growing) is streamed.
+  std::error_code ec;
+  const uintmax_t size = fs::is_regular_file(path, ec) ? fs::file_size(path, ec) : 0;
+  std::string bytes;
+  if (!ec && size > 0) {
+    bytes.resize(size);
+    if (!in.read(bytes.data(), std::streamsize(size))) return fail(ErrorCode::io, "'" + path.string() + "': read error");
+    if (in.peek() == std::char_traits<char>::eof()) return bytes;
+    in.clear();
+  }
   std::ostringstream ss;
   ss << in.rdbuf();
   if (in.bad()) return fail(ErrorCode::io, "'" + path.string() + "': read error");
-  return ss.str();
+  return bytes + ss.str();
 }
 
 Status check_new_folder(const fs::path& out) {

@@ -161,7 +161,47 @@ TEST_F(ModelFiles, OctreeRoundTripAndBrokenLinks) {
     auto r = load_model(dir_);
     ASSERT_FALSE(r) << bad;
     EXPECT_NE(r.error().message.find("octree.bin: node"), std::string::npos) << r.error().message;
+    // Opened without the octree, the model loads; the octree read later
+    // meets the same check.
+    auto deferred = load_model(dir_, ModelLoad{.octree = false});
+    ASSERT_TRUE(deferred) << deferred.error().message;
+    auto later = load_octree(dir_, *deferred);
+    ASSERT_FALSE(later) << bad;
+    EXPECT_NE(later.error().message.find("octree.bin: node"), std::string::npos) << later.error().message;
   }
+  ASSERT_TRUE(save_model(dir_, *back));
+  auto deferred = load_model(dir_, ModelLoad{.octree = false});
+  ASSERT_TRUE(deferred) << deferred.error().message;
+  EXPECT_TRUE(deferred->octree.empty());
+  EXPECT_EQ(deferred->facets.size(), 100u);
+  ASSERT_TRUE(load_octree(dir_, *deferred));
+  ASSERT_EQ(deferred->octree.size(), 3u);
+  EXPECT_EQ(deferred->octree_max_level, 1);
+  EXPECT_EQ(deferred->octree[2].edge_flags, 0x10);
+  // A model without an octree: nothing to read, no error.
+  Model flat = *back;
+  flat.octree.clear();
+  ASSERT_TRUE(save_model(dir_, flat));
+  auto none = load_model(dir_, ModelLoad{.octree = false});
+  ASSERT_TRUE(none);
+  EXPECT_TRUE(load_octree(dir_, *none));
+  EXPECT_TRUE(none->octree.empty());
+}
+
+TEST(ReadFile, WholeFilesOfAnySize) {
+  const fs::path path = temp("read_file");
+  for (size_t n : {size_t(0), size_t(1), size_t(4096), size_t(1) << 20}) {
+    std::string bytes(n, '\0');
+    for (size_t i = 0; i < n; ++i) bytes[i] = char(i * 31 + 7);
+    ASSERT_TRUE(write_file_atomic(path, bytes));
+    auto back = read_file(path);
+    ASSERT_TRUE(back) << back.error().message;
+    EXPECT_EQ(*back, bytes) << n;
+  }
+  fs::remove(path);
+  auto gone = read_file(path);
+  ASSERT_FALSE(gone);
+  EXPECT_EQ(gone.error().code, ErrorCode::not_found);
 }
 
 

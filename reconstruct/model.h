@@ -104,7 +104,15 @@ struct Model {
   size_t splat_count() const { return splats.size() / size_t(splat_layout.stride()); }
 };
 
-Result<Model> load_model(const std::filesystem::path& dir);
+// What load_model reads: all of the model, or all but the octree (a fitted
+// view never needs it; load_octree reads it where billboards first draw).
+struct ModelLoad {
+  bool octree = true;
+};
+Result<Model> load_model(const std::filesystem::path& dir, ModelLoad what = {});
+// The octree of a model loaded without it (nothing where the model has none
+// or `m` already holds it), checked as load_model checks it.
+Status load_octree(const std::filesystem::path& dir, Model& m);
 // Whether model.json names fitted billboards (reads only the header; false
 // where it cannot be read: load_model says why).
 bool model_has_fit(const std::filesystem::path& dir);

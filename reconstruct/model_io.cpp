@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <cstring>
+#include <fstream>
 #include <future>
 
 #include <spdlog/fmt/fmt.h>
@@ -42,32 +43,62 @@ std::string pack(const std::vector<T>& records) {
   return b;
 }
 
-template <class T>
-Result<std::vector<T>> unpack(const fs::path& path, uint64_t expected_count) {
-  auto bytes = read_file(path);
-  if (!bytes) return std::unexpected(bytes.error());
+// A payload's header: its magic, version and record size checked, the
+// record count returned.
+Result<uint64_t> read_header(std::ifstream& in, const fs::path& path, char (&head)[kHeader], size_t record_size) {
   const std::string name = path.string();
-  if (bytes->size() < kHeader + kFooter) return fail(name + ": truncated (" + std::to_string(bytes->size()) + " bytes)");
-  if (std::memcmp(bytes->data(), kMagic, 4) != 0) return fail(name + ": not an s2r payload (bad magic)");
+  std::error_code ec;
+  const uintmax_t bytes = fs::file_size(path, ec);
+  if (ec) return fail(ErrorCode::io, name + ": " + ec.message());
+  if (bytes < kHeader + kFooter) return fail(name + ": truncated (" + std::to_string(bytes) + " bytes)");
+  if (!in.read(head, kHeader)) return fail(ErrorCode::io, name + ": read error");
+  if (std::memcmp(head, kMagic, 4) != 0) return fail(name + ": not an s2r payload (bad magic)");
   uint32_t ver, size;
   uint64_t count;
-  std::memcpy(&ver, bytes->data() + 4, 4);
-  std::memcpy(&size, bytes->data() + 8, 4);
-  std::memcpy(&count, bytes->data() + 16, 8);
+  std::memcpy(&ver, head + 4, 4);
+  std::memcpy(&size, head + 8, 4);
+  std::memcpy(&count, head + 16, 8);
   if (ver != kPayloadVersion) return fail(name + ": payload version " + std::to_string(ver) + " unsupported");
-  if (size != sizeof(T))
-    return fail(name + ": record size " + std::to_string(size) + ", expected " + std::to_string(sizeof(T)));
-  if (count != expected_count)
-    return fail(name + ": holds " + std::to_string(count) + " records but model.json says " + std::to_string(expected_count));
-  if (count > (bytes->size() - kHeader - kFooter) / sizeof(T) ||
-      bytes->size() != kHeader + count * sizeof(T) + kFooter)
-    return fail(name + ": truncated or padded (" + std::to_string(bytes->size()) + " bytes for " +
-                std::to_string(count) + " records)");
-  uint32_t stored;
-  std::memcpy(&stored, bytes->data() + bytes->size() - kFooter, 4);
-  if (stored != crc(*bytes, bytes->size() - kFooter)) return fail(name + ": checksum mismatch (corrupt)");
-  std::vector<T> out(count);
-  if (count) std::memcpy(out.data(), bytes->data() + kHeader, count * sizeof(T));
+  if (record_size && size != record_size)
+    return fail(name + ": record size " + std::to_string(size) + ", expected " + std::to_string(record_size));
+  if (size == 0 || count > (bytes - kHeader - kFooter) / size || bytes != kHeader + count * size + kFooter)
+    return fail(name + ": truncated or padded (" + std::to_string(bytes) + " bytes for " + std::to_string(count) + " records)");
+  return count;
+}
+
+std::ifstream open_payload(const fs::path& path, Status* st) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) {
+    std::error_code ec;
+    *st = fs::exists(path, ec) ? fail(ErrorCode::io, "'" + path.string() + "': cannot open for reading")
+                               : fail(ErrorCode::not_found, "'" + path.string() + "': file not found");
+  }
+  return in;
+}
+
+// Read straight into the records (one buffer the payload's size: a model of
+// hundreds of MB is not copied through a string first), the checksum taken
+// over the header and the records as they lie.
+template <class T>
+Result<std::vector<T>> unpack(const fs::path& path, uint64_t expected_count) {
+  static_assert(std::is_trivially_copyable_v<T>);
+  const std::string name = path.string();
+  Status opened;
+  std::ifstream in = open_payload(path, &opened);
+  if (!opened) return std::unexpected(opened.error());
+  char head[kHeader];
+  auto count = read_header(in, path, head, sizeof(T));
+  if (!count) return std::unexpected(count.error());
+  if (*count != expected_count)
+    return fail(name + ": holds " + std::to_string(*count) + " records but model.json says " + std::to_string(expected_count));
+  std::vector<T> out(*count);
+  uint32_t stored = 0;
+  if (!in.read(reinterpret_cast<char*>(out.data()), std::streamsize(*count * sizeof(T))) ||
+      !in.read(reinterpret_cast<char*>(&stored), kFooter))
+    return fail(ErrorCode::io, name + ": read error");
+  uLong c = ::crc32(0L, reinterpret_cast<const Bytef*>(head), kHeader);
+  c = ::crc32_z(c, reinterpret_cast<const Bytef*>(out.data()), *count * sizeof(T));
+  if (stored != uint32_t(c)) return fail(name + ": checksum mismatch (corrupt)");
   return out;
 }
 
@@ -86,6 +117,43 @@ Status check_splats(const fs::path& file, const std::vector<float>& splats, cons
   return {};
 }
 
+// The octree payload model.json names, where it names one (FieldReader's
+// errors are thrown).
+Status read_octree(const FieldReader& doc, const fs::path& dir, Model& m) {
+  FieldReader pay = doc.at("payloads");
+  if (!pay.has("octree")) return {};
+  const uint64_t no = static_cast<uint64_t>(pay.at("octree").integer("records"));
+  m.octree_max_level = static_cast<int>(doc.integer("octree_max_level"));
+  if (m.octree_max_level < 0 || m.octree_max_level > 30) doc.error("octree_max_level", "must be in 0..30");
+  auto oct = unpack<OctreeRecord>(dir / "octree.bin", no);
+  if (!oct) return std::unexpected(oct.error());
+  m.octree = std::move(*oct);
+  return {};
+}
+
+// The octree's records against each other and the model's levels.
+Status check_octree(const fs::path& dir, const Model& m) {
+  const std::string ob = (dir / "octree.bin").string();
+  for (size_t i = 0; i < m.octree.size(); ++i) {
+    const auto& n = m.octree[i];
+    const auto at = [&] { return ob + ": node " + std::to_string(i) + ": "; };
+    for (float v : {n.vertex[0], n.vertex[1], n.vertex[2], n.normal[0], n.normal[1], n.normal[2], n.cone, n.shape_error})
+      if (!std::isfinite(v)) return fail(at() + "non-finite value");
+    if (n.cone < 0 || n.cone > 3.1416f) return fail(at() + "cone angle outside [0, pi]");
+    if (n.shape_error < 0) return fail(at() + "negative shape error");
+    if (n.level > m.octree_max_level) return fail(at() + "level beyond octree_max_level");
+    if (n.first_child == kNoChild) {
+      if (n.children != 0) return fail(at() + "children without first_child");
+      continue;
+    }
+    if (n.children == 0 || n.children > 8 || n.first_child <= i || uint64_t(n.first_child) + n.children > m.octree.size())
+      return fail(at() + "child range [" + std::to_string(n.first_child) + ", +" + std::to_string(n.children) + ") invalid");
+    for (uint32_t c = n.first_child; c < n.first_child + n.children; ++c)
+      if (m.octree[c].level != n.level + 1) return fail(at() + "child " + std::to_string(c) + " is not one level down");
+  }
+  return {};
+}
+
 }  // namespace
 
 Status save_splat_payload(const fs::path& file, const std::vector<float>& splats) {
@@ -93,12 +161,14 @@ Status save_splat_payload(const fs::path& file, const std::vector<float>& splats
 }
 
 Result<std::vector<float>> load_splat_payload(const fs::path& file, const SplatLayout& layout) {
-  auto bytes = read_file(file);
-  if (!bytes) return std::unexpected(bytes.error());
-  if (bytes->size() < kHeader + kFooter) return fail(file.string() + ": truncated");
-  uint64_t count;
-  std::memcpy(&count, bytes->data() + 16, 8);
-  auto splats = unpack<float>(file, count);
+  Status opened;
+  std::ifstream in = open_payload(file, &opened);
+  if (!opened) return std::unexpected(opened.error());
+  char head[kHeader];
+  auto count = read_header(in, file, head, sizeof(float));
+  if (!count) return std::unexpected(count.error());
+  in.close();
+  auto splats = unpack<float>(file, *count);
   if (!splats) return std::unexpected(splats.error());
   if (auto st = check_splats(file, *splats, layout); !st) return std::unexpected(st.error());
   return splats;
@@ -151,7 +221,7 @@ bool model_has_fit(const fs::path& dir) {
   return j && j->is_object() && j->contains("payloads") && (*j)["payloads"].is_object() && (*j)["payloads"].contains("splats");
 }
 
-Result<Model> load_model(const fs::path& dir) {
+Result<Model> load_model(const fs::path& dir, ModelLoad what) {
   if (auto st = check_links_inside(dir); !st) return std::unexpected(st.error());
   auto j = parse_json_file(dir / "model.json");
   if (!j) return std::unexpected(j.error());
@@ -213,14 +283,8 @@ Result<Model> load_model(const fs::path& dir) {
     if (!fc) return std::unexpected(fc.error());
     m.facets = std::move(*facets);
     m.facet_cameras = std::move(*fc);
-    if (pay.has("octree")) {
-      const uint64_t no = static_cast<uint64_t>(pay.at("octree").integer("records"));
-      m.octree_max_level = static_cast<int>(doc.integer("octree_max_level"));
-      if (m.octree_max_level < 0 || m.octree_max_level > 30) doc.error("octree_max_level", "must be in 0..30");
-      auto oct = unpack<OctreeRecord>(dir / "octree.bin", no);
-      if (!oct) return std::unexpected(oct.error());
-      m.octree = std::move(*oct);
-    }
+    if (what.octree)
+      if (auto st = read_octree(doc, dir, m); !st) return std::unexpected(st.error());
     if (pay.has("splats")) {
       const uint64_t ns = static_cast<uint64_t>(pay.at("splats").integer("records"));
       m.splat_layout.sh_degree = static_cast<int>(doc.integer("splat_sh_degree"));
@@ -236,12 +300,12 @@ Result<Model> load_model(const fs::path& dir) {
   const std::string fb = (dir / "facets.bin").string();
   for (size_t i = 0; i < m.facets.size(); ++i) {
     const auto& f = m.facets[i];
-    const std::string at = fb + ": facet " + std::to_string(i) + ": ";
+    const auto at = [&] { return fb + ": facet " + std::to_string(i) + ": "; };
     for (float v : {f.center[0], f.center[1], f.center[2], f.size, f.normal[0], f.normal[1], f.normal[2], f.reliability})
-      if (!std::isfinite(v)) return fail(at + "non-finite value");
-    if (!(f.size > 0)) return fail(at + "size must be > 0");
+      if (!std::isfinite(v)) return fail(at() + "non-finite value");
+    if (!(f.size > 0)) return fail(at() + "size must be > 0");
     if (uint64_t(f.first_camera) + f.camera_count > m.facet_cameras.size())
-      return fail(at + "camera range [" + std::to_string(f.first_camera) + ", +" + std::to_string(f.camera_count) +
+      return fail(at() + "camera range [" + std::to_string(f.first_camera) + ", +" + std::to_string(f.camera_count) +
                   ") exceeds facet_cameras (" + std::to_string(m.facet_cameras.size()) + ")");
   }
   for (size_t i = 0; i < m.facet_cameras.size(); ++i)
@@ -249,25 +313,26 @@ Result<Model> load_model(const fs::path& dir) {
       return fail((dir / "facet_cameras.bin").string() + ": entry " + std::to_string(i) + " names camera " +
                   std::to_string(m.facet_cameras[i]) + " of " + std::to_string(m.cameras.size()));
   if (auto st = check_splats(dir / "splats.bin", m.splats, m.splat_layout); !st) return std::unexpected(st.error());
-  const std::string ob = (dir / "octree.bin").string();
-  for (size_t i = 0; i < m.octree.size(); ++i) {
-    const auto& n = m.octree[i];
-    const std::string at = ob + ": node " + std::to_string(i) + ": ";
-    for (float v : {n.vertex[0], n.vertex[1], n.vertex[2], n.normal[0], n.normal[1], n.normal[2], n.cone, n.shape_error})
-      if (!std::isfinite(v)) return fail(at + "non-finite value");
-    if (n.cone < 0 || n.cone > 3.1416f) return fail(at + "cone angle outside [0, pi]");
-    if (n.shape_error < 0) return fail(at + "negative shape error");
-    if (n.level > m.octree_max_level) return fail(at + "level beyond octree_max_level");
-    if (n.first_child == kNoChild) {
-      if (n.children != 0) return fail(at + "children without first_child");
-      continue;
-    }
-    if (n.children == 0 || n.children > 8 || n.first_child <= i || uint64_t(n.first_child) + n.children > m.octree.size())
-      return fail(at + "child range [" + std::to_string(n.first_child) + ", +" + std::to_string(n.children) + ") invalid");
-    for (uint32_t c = n.first_child; c < n.first_child + n.children; ++c)
-      if (m.octree[c].level != n.level + 1) return fail(at + "child " + std::to_string(c) + " is not one level down");
-  }
+  if (auto st = check_octree(dir, m); !st) return std::unexpected(st.error());
   return m;
+}
+
+Status load_octree(const fs::path& dir, Model& m) {
+  if (!m.octree.empty()) return {};
+  auto j = parse_json_file(dir / "model.json");
+  if (!j) return std::unexpected(j.error());
+  Model o;
+  try {
+    FieldReader doc(*j, (dir / "model.json").string());
+    check_format_header(doc, "s2r.model", kModelVersion);
+    if (auto st = read_octree(doc, dir, o); !st) return st;
+  } catch (const FormatError& e) {
+    return fail(e.what());
+  }
+  if (auto st = check_octree(dir, o); !st) return st;
+  m.octree = std::move(o.octree);
+  m.octree_max_level = o.octree_max_level;
+  return {};
 }
 
 Result<std::optional<ImageU8>> load_backdrop(const Model& model, const fs::path& dir) {

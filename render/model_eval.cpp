@@ -151,7 +151,8 @@ struct Renderer {
 // `splats`: a snapshot of the fit (splats_<S>s.bin) drawn instead of the model's.
 Result<Renderer> open_model(const fs::path& dir, const fs::path& splats = {}) {
   Renderer r;
-  auto model = load_model(dir);
+  // The octree is read when billboards first draw (a fitted view never does).
+  auto model = load_model(dir, ModelLoad{.octree = false});
   if (!model) return std::unexpected(model.error());
   if (!splats.empty()) {
     if (model->splats.empty()) return fail(dir.string() + ": the model has no fit, so no layout for " + splats.string());
@@ -185,14 +186,21 @@ Status RenderJob::validate() const {
 Result<RenderSummary> run_render_job(const RenderJob& job) {
   Stopwatch clock;
   if (auto st = job.validate(); !st) return std::unexpected(st.error());
+  // Each phase's seconds (counts.seconds_*), so the time to the first frame
+  // shows apart from the image's size (the read back and the PNG).
+  double mark = 0;
+  const auto phase = [&](double* out) { const double now = clock.seconds(); *out = now - mark, mark = now; };
+  double t_open = 0, t_view = 0, t_draw = 0, t_read = 0, t_write = 0;
   auto r = open_model(job.model);
   if (!r) return std::unexpected(r.error());
+  phase(&t_open);
   bool own = false;
   Result<ViewCamera> view = !job.view_file.empty() ? load_view_file(job.view_file)
                             : job.view              ? frame_view(r->model(), job.source, *job.view, &own)
                                                     : Result<ViewCamera>(fail("no view (validate() refuses this)"));
   if (!view) return std::unexpected(view.error());
   const ViewCamera v = scaled(*view, job.scale);
+  phase(&t_view);
   auto fb = Framebuffer::create(v.K.width, v.K.height);
   if (!fb) return std::unexpected(fb.error());
   RenderSummary sum;
@@ -217,7 +225,17 @@ Result<RenderSummary> run_render_job(const RenderJob& job) {
   }
   auto st = r->renderer->draw(v, draw, *fb);
   if (!st) return std::unexpected(st.error());
-  if (auto w = write_image(job.out, fb->read_rgb()); !w) return std::unexpected(w.error());
+  phase(&t_draw);
+  const ImageU8 image = fb->read_rgb();
+  phase(&t_read);
+  if (auto w = write_image(job.out, image); !w) return std::unexpected(w.error());
+  phase(&t_write);
+  rep.counts["seconds_open_model"] = t_open;
+  rep.counts["seconds_view"] = t_view;
+  rep.counts["seconds_draw"] = t_draw;
+  rep.counts["seconds_to_frame"] = t_open + t_view + t_draw;
+  rep.counts["seconds_read_back"] = t_read;
+  rep.counts["seconds_write_png"] = t_write;
   if (job.environment) rep.params["envmap_bound"] = st->envmap_bound;
   add_selection(rep, *st, "");
   rep.counts["triangles"] = double(st->triangles);

@@ -644,6 +644,10 @@ Status ModelRenderer::load_photo_passes_once() {
   }
   camera_layer_ = layer;
   texture_bytes_ = size_t(texture_width_) * texture_height_ * layers * 8;
+  // A model opened without its octree (ModelLoad) reads it now: only the
+  // billboards' level of detail walks it.
+  if (!dir_.empty())
+    if (auto st = load_octree(dir_, model_); !st) return st;
   hierarchy_ = FacetHierarchy::build(model_, facet_luminance(model_, tex));
 
   // Cameras: 32 floats each (the GLSL Cam struct, std430).

@@ -253,7 +253,8 @@ ViewCamera default_orbit_view(const Model& model, int width, int height, double 
 }
 
 Result<Report> run_viewer(const ViewerOptions& opt) {
-  auto model = load_model(opt.model);
+  // The octree is read when billboards first draw (a fitted model's view never does).
+  auto model = load_model(opt.model, ModelLoad{.octree = false});
   if (!model) return std::unexpected(model.error());
   if (opt.width < 16 || opt.height < 16 || opt.width > 8192 || opt.height > 8192)
     return fail("window size must be between 16 and 8192 pixels");
