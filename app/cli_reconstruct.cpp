@@ -143,6 +143,12 @@ void add_reconstruct(CLI::App& app, Chosen& chosen) {
                   "the fit's loss: (1 - W) x squared error + W x (1 - SSIM), as 3D Gaussian Splatting mixes in D-SSIM (0.2 chosen on lego's val split); 0: squared error alone")
       ->check(CLI::Range(0.0, 0.95))
       ->capture_default_str();
+  sub->add_option("--fit-pixel-filter", job.fit_pixel_filter_px2,
+                  "the fitted billboards' pixel filter, pixels^2: each footprint is drawn convolved with a Gaussian of "
+                  "this variance, its energy kept (Mip-Splatting's 2D filter), so a facet smaller than a pixel draws "
+                  "as its share of the pixel, not as speckle; 0: none")
+      ->check(CLI::Range(0.0, 4.0))
+      ->capture_default_str();
   sub->add_option("--fit-depth", job.fit_depth_weight,
                   "captures with depth: the fit's loss adds W x the squared distance (in voxels) of each pixel's opacity "
                   "from the fused depth surface, so facets stay on the surface the depth camera saw; 0: colour alone")

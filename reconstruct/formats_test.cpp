@@ -188,6 +188,30 @@ TEST_F(ModelFiles, OctreeRoundTripAndBrokenLinks) {
   EXPECT_TRUE(none->octree.empty());
 }
 
+// The fitted billboards' pixel filter travels with the model; a model
+// written before it (no key) draws without one, as it was fitted.
+TEST_F(ModelFiles, SplatPixelFilterIsKeptAndOldModelsHaveNone) {
+  auto m = load_model(dir_);
+  ASSERT_TRUE(m);
+  m->splat_layout = SplatLayout{0, 0.3f};
+  m->splats = {0, 0, 0.1f, 0.002f, 0.5f, 0.1f, 0.2f, 0.3f};  // centre, sigma, opacity, SH degree 0
+  ASSERT_TRUE(save_model(dir_, *m));
+  auto back = load_model(dir_);
+  ASSERT_TRUE(back) << back.error().message;
+  EXPECT_FLOAT_EQ(back->splat_layout.pixel_filter_px2, 0.3f);
+  auto j = *parse_json_file(dir_ / "model.json");
+  j.erase("splat_pixel_filter_px2");
+  ASSERT_TRUE(write_file_atomic(dir_ / "model.json", j.dump()));
+  back = load_model(dir_);
+  ASSERT_TRUE(back) << back.error().message;
+  EXPECT_FLOAT_EQ(back->splat_layout.pixel_filter_px2, 0.f);
+  j["splat_pixel_filter_px2"] = 9;
+  ASSERT_TRUE(write_file_atomic(dir_ / "model.json", j.dump()));
+  back = load_model(dir_);
+  ASSERT_FALSE(back);
+  EXPECT_NE(back.error().message.find("splat_pixel_filter_px2"), std::string::npos) << back.error().message;
+}
+
 TEST(ReadFile, WholeFilesOfAnySize) {
   const fs::path path = temp("read_file");
   for (size_t n : {size_t(0), size_t(1), size_t(4096), size_t(1) << 20}) {

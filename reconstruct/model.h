@@ -62,8 +62,15 @@ inline constexpr uint32_t kNoChild = 0xffffffffu;
 // centre x y z (metres), footprint sigma (metres), opacity (0..1), then the
 // colour's spherical-harmonic coefficients, coefficient-major (k * 3 + c),
 // (degree + 1)^2 of them per channel.
+// The pixel filter of the fitted billboards' image formation (splat_fit.h):
+// the variance, in pixels^2, of the Gaussian each footprint is convolved with
+// on screen. Models fitted before it had none (model.json without
+// "splat_pixel_filter_px2" loads as 0 and draws as it was fitted).
+inline constexpr float kSplatPixelFilterPx2 = 0.3f;
+
 struct SplatLayout {
   int sh_degree = 0;
+  float pixel_filter_px2 = kSplatPixelFilterPx2;
   int coeffs() const { return (sh_degree + 1) * (sh_degree + 1); }
   int stride() const { return 5 + 3 * coeffs(); }  // floats per facet
 };

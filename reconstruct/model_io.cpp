@@ -194,6 +194,7 @@ Status save_model(const fs::path& dir, const Model& m) {
   if (!m.splats.empty()) {
     doc["payloads"]["splats"] = {{"file", "splats.bin"}, {"records", m.splats.size()}};
     doc["splat_sh_degree"] = m.splat_layout.sh_degree;
+    doc["splat_pixel_filter_px2"] = m.splat_layout.pixel_filter_px2;
   }
   if (!m.session.empty()) doc["session"] = m.session;
   if (m.patch_mesh) doc["patch_mesh"] = *m.patch_mesh;
@@ -289,6 +290,9 @@ Result<Model> load_model(const fs::path& dir, ModelLoad what) {
       const uint64_t ns = static_cast<uint64_t>(pay.at("splats").integer("records"));
       m.splat_layout.sh_degree = static_cast<int>(doc.integer("splat_sh_degree"));
       if (m.splat_layout.sh_degree < 0 || m.splat_layout.sh_degree > 2) doc.error("splat_sh_degree", "must be 0, 1 or 2");
+      m.splat_layout.pixel_filter_px2 = doc.has("splat_pixel_filter_px2") ? float(doc.number("splat_pixel_filter_px2")) : 0.f;
+      if (!(m.splat_layout.pixel_filter_px2 >= 0 && m.splat_layout.pixel_filter_px2 <= 4))
+        doc.error("splat_pixel_filter_px2", "must be in [0, 4] (pixels^2)");
       auto sp = unpack<float>(dir / "splats.bin", ns);
       if (!sp) return std::unexpected(sp.error());
       m.splats = std::move(*sp);

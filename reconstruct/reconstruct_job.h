@@ -71,6 +71,8 @@ struct ReconstructJob {
   // (all 100 views, 1500-s fit: 33.11 dB / SSIM 0.974 against 32.15 / 0.959
   // with the squared error alone; docs/cli.md).
   double fit_ssim_weight = 0.2;
+  // The fitted billboards' pixel filter, pixels^2 (splat_fit.h; 0: none).
+  double fit_pixel_filter_px2 = kSplatPixelFilterPx2;
   double fit_depth_weight = 0;         // the fit's depth term where the capture has depth (SplatFitOptions::depth_weight)
   std::vector<double> fit_snapshots;  // seconds: also write splats_<s>s.bin at these (error against run time)
   int threads = 0;

@@ -205,8 +205,7 @@ void SplatCompositor::composite(const std::vector<float>& records, int coeffs, c
       q.o = 0;
       const Eigen::Vector3f X(rec[0], rec[1], rec[2]);
       const Eigen::Vector3f pc = cfw * X;
-      const float o = rec[4];
-      if (!(pc.z() > float(near_m)) || !(pc.z() > 1e-3f) || o < kSplatAlphaMin) continue;
+      if (!(pc.z() > float(near_m)) || !(pc.z() > 1e-3f) || rec[4] < kSplatAlphaMin) continue;
       float u, v;
       if (lens) {
         const auto px = K.project(pc.cast<double>());
@@ -216,7 +215,9 @@ void SplatCompositor::composite(const std::vector<float>& records, int coeffs, c
         u = float(K.fx) * pc.x() / pc.z() + float(K.cx);
         v = float(K.fy) * pc.y() / pc.z() + float(K.cy);
       }
-      const float sigma = std::max(rec[3] * float(K.fx) / pc.z(), 1e-4f);
+      const ScreenFootprint fp = screen_footprint(rec[3] * float(K.fx) / pc.z(), rec[4], pixel_filter_px2_);
+      const float sigma = std::max(fp.sigma, 1e-4f), o = fp.opacity;
+      if (o < kSplatAlphaMin) continue;
       // The box reaches a hair past where alpha falls under 1/255; the alpha
       // test itself (with the same exp as the fit) decides the edge pixels.
       const float r2 = sigma * sigma * std::min(9.f, 2.f * std::log(std::max(255.f * o, 1.f)) + 1e-3f);
@@ -351,8 +352,10 @@ bool order_splats_spatially(std::vector<float>& records, int stride) {
 
 void composite_splats(const std::vector<float>& records, int coeffs, const Intrinsics& K,
                       const Eigen::Isometry3d& world_from_camera, double near_m, std::vector<float>& rgba_out, int threads,
-                      SplatCompositeStats* stats) {
-  SplatCompositor().composite(records, coeffs, K, world_from_camera, near_m, rgba_out, threads, stats);
+                      SplatCompositeStats* stats, float pixel_filter_px2) {
+  SplatCompositor c;
+  c.set_pixel_filter(pixel_filter_px2);
+  c.composite(records, coeffs, K, world_from_camera, near_m, rgba_out, threads, stats);
 }
 
 }  // namespace s2r

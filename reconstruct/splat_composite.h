@@ -18,6 +18,7 @@
 #include <Eigen/Geometry>
 
 #include "core/camera_model.h"
+#include "reconstruct/model.h"
 
 namespace s2r {
 
@@ -46,11 +47,15 @@ class SplatCompositor {
   // 4: four pixels a vector even where AVX2 would give eight (tests of
   // both); 0 (default): the widest the processor has.
   void set_lanes(int lanes) { lanes_ = lanes; }
+  // The image formation's pixel filter, pixels^2 (the model's
+  // SplatLayout::pixel_filter_px2; splat_fit.h).
+  void set_pixel_filter(float px2) { pixel_filter_px2_ = px2; }
 
  private:
   struct Buffers;
   std::unique_ptr<Buffers> b_;
   int lanes_ = 0;
+  float pixel_filter_px2_ = kSplatPixelFilterPx2;
 };
 
 // Reorders the facets (records of `stride` floats) along a Morton curve of
@@ -61,6 +66,6 @@ bool order_splats_spatially(std::vector<float>& records, int stride);
 
 void composite_splats(const std::vector<float>& records, int coeffs, const Intrinsics& K,
                       const Eigen::Isometry3d& world_from_camera, double near_m, std::vector<float>& rgba_out, int threads = 0,
-                      SplatCompositeStats* stats = nullptr);
+                      SplatCompositeStats* stats = nullptr, float pixel_filter_px2 = kSplatPixelFilterPx2);
 
 }  // namespace s2r

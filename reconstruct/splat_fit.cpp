@@ -67,7 +67,7 @@ Intrinsics scaled(const Intrinsics& K, int s) {
 }  // namespace
 
 SplatFrame fit_detail::project(const std::vector<Splat>& splats, int coeffs, const Intrinsics& K,
-                               const Eigen::Isometry3d& world_from_camera, int threads) {
+                               const Eigen::Isometry3d& world_from_camera, int threads, float pixel_filter_px2) {
   SplatFrame f;
   f.width = K.width, f.height = K.height;
   f.tiles_x = (K.width + kTile - 1) / kTile, f.tiles_y = (K.height + kTile - 1) / kTile;
@@ -95,17 +95,17 @@ SplatFrame fit_detail::project(const std::vector<Splat>& splats, int coeffs, con
         u = float(K.fx) * pc.x() / pc.z() + float(K.cx);
         v = float(K.fy) * pc.y() / pc.z() + float(K.cy);
       }
-      const float sigma = s.sigma() * float(K.fx) / pc.z();
-      const float r = kCut * sigma;
+      const ScreenFootprint fp = screen_footprint(s.sigma() * float(K.fx) / pc.z(), s.opacity(), pixel_filter_px2);
+      const float r = kCut * fp.sigma;
       if (u + r < -0.5f || v + r < -0.5f || u - r > K.width - 0.5f || v - r > K.height - 0.5f) continue;
-      const float o = s.opacity();
-      if (o < kSplatAlphaMin) continue;
+      if (fp.opacity < kSplatAlphaMin) continue;
       Projected p;
       p.u = u, p.v = v;
-      p.sigma = std::max(sigma, 1e-4f);
+      p.sigma = std::max(fp.sigma, 1e-4f);
       p.inv2s2 = 0.5f / (p.sigma * p.sigma);
       p.r2max = r * r;
-      p.o = o;
+      p.o = fp.opacity;
+      p.sigma_gain = fp.sigma_gain, p.opacity_gain_sigma = fp.opacity_gain_sigma, p.opacity_gain = fp.opacity_gain;
       p.pc = pc;
       p.dist = pc.norm();
       p.id = uint32_t(i);
@@ -488,8 +488,8 @@ Eigen::Vector3f splat_color(const Splat& s, int coeffs, const Eigen::Vector3f& d
 
 ImageF render_splats(const std::vector<Splat>& splats, int coeffs, const Intrinsics& K,
                      const Eigen::Isometry3d& world_from_camera, const std::array<float, 3>& background, ImageF* alpha_out,
-                     int threads) {
-  const SplatFrame f = project(splats, coeffs, K, world_from_camera, threads);
+                     int threads, float pixel_filter_px2) {
+  const SplatFrame f = project(splats, coeffs, K, world_from_camera, threads, pixel_filter_px2);
   ImageF out(K.width, K.height, 3);
   if (alpha_out) *alpha_out = ImageF(K.width, K.height, 1);
   for_tiles(f, threads, [&](int tile, int) {
@@ -511,6 +511,7 @@ Status SplatFitOptions::validate() const {
   if (!(opacity_init > 0 && opacity_init < 1)) return fail(ErrorCode::invalid, "fit: opacity_init: must be in (0, 1)");
   for (double lr : {lr_color, lr_rest, lr_opacity, lr_sigma, lr_offset})
     if (!(lr >= 0) || !std::isfinite(lr)) return fail(ErrorCode::invalid, "fit: learning rates must be >= 0 and finite");
+  if (!(pixel_filter_px2 >= 0 && pixel_filter_px2 <= 4)) return fail(ErrorCode::invalid, "fit: pixel_filter_px2: must be in [0, 4] (pixels^2)");
   if (!(lr_final > 0 && lr_final <= 1)) return fail(ErrorCode::invalid, "fit: lr_final: must be in (0, 1]");
   if (!(stage_time_growth >= 0.25 && stage_time_growth <= 16))
     return fail(ErrorCode::invalid, "fit: stage_time_growth: must be in [0.25, 16]");
@@ -570,6 +571,7 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
   const auto t0 = clock::now();
   auto elapsed = [&] { return std::chrono::duration<double>(clock::now() - t0).count(); };
   const int coeffs = sh_coeffs(o.sh_degree);
+  const float filter = float(o.pixel_filter_px2);
   const int np = param_count(coeffs);
   std::vector<Splat> splats = splats_io;
   SplatFitSummary sum;
@@ -718,7 +720,7 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
       std::array<float, 3> colour;
       ImageU8 moved;
       const auto [target, bg] = step_target(i, s0, *photos[i], gen, colour, moved);
-      sq += forward_backward(project(splats, coeffs, K, views[i].world_from_camera, o.threads), *target, bg, 1.f,
+      sq += forward_backward(project(splats, coeffs, K, views[i].world_from_camera, o.threads, filter), *target, bg, 1.f,
                              o.threads, nullptr, 0, 0, 0, &dsq, &dpx);
       px += 3.0 * K.width * K.height;
     }
@@ -782,7 +784,7 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
         ImageU8 moved;
         const auto [target, bg] = step_target(size_t(vi), scale, *photos[size_t(vi)], rng, colour, moved);
         const double t_a = elapsed();
-        const SplatFrame f = project(splats, coeffs, K, view.world_from_camera, o.threads);
+        const SplatFrame f = project(splats, coeffs, K, view.world_from_camera, o.threads, filter);
         const double t_b = elapsed();
         const float inv = 1.f / float(3.0 * K.width * K.height);
         sq += forward_backward(f, *target, bg, inv, o.threads, &grads, float(o.ssim_weight), 0, depth_scale, &dsq, &dpx);
@@ -812,13 +814,15 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
             used[pr.id] += gr.weight;
             // Chain rule to the parameters.
             const float z = pr.pc.z();
-            const float dz = -(gr.u * float(K.fx) * pr.pc.x() + gr.v * float(K.fy) * pr.pc.y()) / (z * z) -
-                             gr.sigma * pr.sigma / z;
+            // d loss / d log sigma_px, through the pixel filter's sigma and opacity.
+            const float dlog = gr.sigma * pr.sigma_gain + gr.o * pr.opacity_gain_sigma;
+            const float dz = -(gr.u * float(K.fx) * pr.pc.x() + gr.v * float(K.fy) * pr.pc.y()) / (z * z) - dlog / z;
             const Eigen::Vector3f dcam(gr.u * float(K.fx) / z, gr.v * float(K.fy) / z, dz);
             const Eigen::Vector3f dworld = R * (dcam + pr.pc * (gr.dist / pr.dist));
             g[0] = dworld.x(), g[1] = dworld.y(), g[2] = dworld.z();
-            g[3] = gr.sigma * pr.sigma;
-            g[4] = gr.o * pr.o * (1.f - pr.o);
+            g[3] = dlog;
+            const float o_facet = s.opacity();
+            g[4] = gr.o * pr.opacity_gain * o_facet * (1.f - o_facet);
             sh_basis((s.centre() - eye).normalized(), coeffs, basis);
             for (int k = 0; k < coeffs; ++k)
               for (int c = 0; c < 3; ++c) g[5 + k * 3 + c] = (pr.clamped >> c & 1) ? 0.f : gr.c[c] * basis[k];

@@ -12,7 +12,14 @@
 // screen is an isotropic Gaussian, sigma_px = sigma_i f / z_i (f = fx, z_i
 // the centre's depth), centred on the projection of X_i through the camera's
 // lens model, cut at 3 sigma. Its alpha at a pixel is min(0.99, o_i g),
-// g the Gaussian; alpha under 1/255 draws nothing. The facets are composited
+// g the Gaussian; alpha under 1/255 draws nothing. The footprint is first
+// convolved with a Gaussian of variance f = the pixel filter (pixels^2,
+// about a pixel's box; kSplatPixelFilterPx2), its energy kept, as the 2D Mip
+// filter of Yu, Chen, Huang, Sattler and Geiger ("Mip-Splatting: Alias-free
+// 3D Gaussian Splatting", 2024): sigma'^2 = sigma_px^2 + f and
+// o' = o sigma_px^2 / sigma'^2. A facet smaller than a pixel then draws as
+// its share of the pixel instead of a point sampled at pixel centres, which
+// shows as speckle in views between the photos (screen_footprint). The facets are composited
 // front to back in order of z_i over the background b:
 //     C = sum_i c_i alpha_i T_i + T_N b,  T_i = prod_{j<i} (1 - alpha_j),
 // and a pixel stops once T would fall under 1e-4. c_i = max(0, 0.5 + SH(d)),
@@ -40,6 +47,7 @@
 #include "core/camera_model.h"
 #include "core/image.h"
 #include "core/result.h"
+#include "reconstruct/model.h"
 
 namespace s2r {
 
@@ -62,6 +70,20 @@ struct Splat {
   float sigma() const { return std::exp(log_sigma); }
   float opacity() const { return 1.f / (1.f + std::exp(-opacity_logit)); }
 };
+
+// A facet's footprint on screen through the pixel filter (see the image
+// formation above): its sigma' and o', and what the fit's chain rule needs,
+// d sigma' / d log sigma_px, d o' / d log sigma_px and d o' / d o.
+struct ScreenFootprint {
+  float sigma, opacity;
+  float sigma_gain, opacity_gain_sigma, opacity_gain;
+};
+inline ScreenFootprint screen_footprint(float sigma_px, float opacity, float filter_px2) {
+  const float s2 = sigma_px * sigma_px, v = s2 + filter_px2;
+  if (!(v > 0)) return {0.f, opacity, 0.f, 0.f, 1.f};
+  const float keep = s2 / v, sigma = std::sqrt(v);
+  return {sigma, opacity * keep, s2 / sigma, opacity * 2.f * s2 * filter_px2 / (v * v), keep};
+}
 
 // Real spherical-harmonic basis (the order and signs 3DGS uses), `n` = 1, 4 or 9.
 void sh_basis(const Eigen::Vector3f& dir, int n, float* out);
@@ -126,7 +148,7 @@ struct SplatView {
 // `alpha_out` (optional) 1 - T_N per pixel.
 ImageF render_splats(const std::vector<Splat>& splats, int coeffs, const Intrinsics& K,
                      const Eigen::Isometry3d& world_from_camera, const std::array<float, 3>& background,
-                     ImageF* alpha_out = nullptr, int threads = 0);
+                     ImageF* alpha_out = nullptr, int threads = 0, float pixel_filter_px2 = kSplatPixelFilterPx2);
 
 struct SplatFitOptions {
   double seconds = 600;         // wall-clock budget of the whole fit
@@ -145,6 +167,9 @@ struct SplatFitOptions {
   double prune_opacity = 0.02;  // at refinement and at the end
   size_t max_facets = 600000;   // refinement splits the most used facets up to this many (half that before the last stage)
   std::array<float, 3> background{0, 0, 0};
+  // The image formation's pixel filter (pixels^2 at each pyramid level's own
+  // pixels; see above): 0 draws every footprint at its own size.
+  double pixel_filter_px2 = kSplatPixelFilterPx2;
   // Each step of a view with a matte (and no backdrop plate) moves its photo
   // onto a random colour under the matte, photo + (r - b)(1 - matte), and
   // composites the facets on the same r, as Mueller, Evans, Schied and

@@ -114,15 +114,55 @@ TEST(SplatFit, RenderIsTheCompositingFormula) {
   s.opacity_logit = 0.f;
   s.sh[0] = s.sh[1] = s.sh[2] = -0.5f / 0.28209479177387814f;  // black
   const Eigen::Isometry3d T = ring_camera(0, 0, 1.0);
-  ImageF alpha;
-  const ImageF im = render_splats({s}, 1, small_camera(), T, {1, 1, 1}, &alpha);
-  // The origin projects to the principal point (79.5, 59.5): the four pixels
-  // around it are 0.5 px away each way, g = exp(-0.25 / (2 sigma_px^2)).
-  const float sigma_px = 0.01f * 180.f / 1.f;
-  const float a = 0.5f * std::exp(-0.5f / (2 * sigma_px * sigma_px));
-  EXPECT_NEAR(im.at(79, 59, 0), 1.f - a, 1e-5);
-  EXPECT_NEAR(alpha.at(80, 60), a, 1e-5);
-  EXPECT_FLOAT_EQ(im.at(0, 0, 1), 1.f);  // far outside 3 sigma: the background
+  for (float filter : {0.f, kSplatPixelFilterPx2}) {
+    SCOPED_TRACE(filter);
+    ImageF alpha;
+    const ImageF im = render_splats({s}, 1, small_camera(), T, {1, 1, 1}, &alpha, 1, filter);
+    // The origin projects to the principal point (79.5, 59.5): the four pixels
+    // around it are 0.5 px away each way, g = exp(-0.25 / (2 sigma^2)), where
+    // the pixel filter widens sigma^2 by f and scales opacity by the ratio.
+    const float sigma_px = 0.01f * 180.f / 1.f, s2 = sigma_px * sigma_px + filter;
+    const float a = 0.5f * (sigma_px * sigma_px / s2) * std::exp(-0.5f / (2 * s2));
+    EXPECT_NEAR(im.at(79, 59, 0), 1.f - a, 1e-5);
+    EXPECT_NEAR(alpha.at(80, 60), a, 1e-5);
+    EXPECT_FLOAT_EQ(im.at(0, 0, 1), 1.f);  // far outside 3 sigma: the background
+  }
+}
+
+// The pixel filter's footprint and its derivatives (the fit's chain rule)
+// against central differences, from footprints far under a pixel to many
+// pixels wide; its energy (o sigma^2) is kept, and without it the
+// footprint is the facet's own.
+TEST(SplatFit, PixelFilterChainRule) {
+  const float f = kSplatPixelFilterPx2;
+  for (float sp : {0.02f, 0.2f, 0.5f, 1.f, 3.f, 30.f})
+    for (float o : {0.05f, 0.5f, 0.98f}) {
+      SCOPED_TRACE(sp);
+      const ScreenFootprint fp = screen_footprint(sp, o, f);
+      EXPECT_NEAR(fp.sigma * fp.sigma, sp * sp + f, 1e-4 * (sp * sp + f));
+      EXPECT_NEAR(fp.opacity * fp.sigma * fp.sigma, o * sp * sp, 1e-5 * (o * sp * sp) + 1e-9);
+      EXPECT_LE(fp.opacity, o);
+      const double h = 1e-2;
+      const auto at = [&](double log_s, double op) { return screen_footprint(float(std::exp(log_s)), float(op), f); };
+      const double ls = std::log(double(sp));
+      const double ds = (double(at(ls + h, o).sigma) - at(ls - h, o).sigma) / (2 * h);
+      const double dos = (double(at(ls + h, o).opacity) - at(ls - h, o).opacity) / (2 * h);
+      const double doo = (double(at(ls, o + h).opacity) - at(ls, o - h).opacity) / (2 * h);
+      // (differences of floats: about 1e-7 / h of each value beside the relative part)
+      EXPECT_NEAR(fp.sigma_gain, ds, 2e-3 * std::abs(ds) + 2e-5);
+      EXPECT_NEAR(fp.opacity_gain_sigma, dos, 2e-3 * std::abs(dos) + 2e-5);
+      EXPECT_NEAR(fp.opacity_gain, doo, 2e-3 * std::abs(doo) + 2e-5);
+      const ScreenFootprint none = screen_footprint(sp, o, 0.f);
+      EXPECT_FLOAT_EQ(none.sigma, sp);
+      EXPECT_FLOAT_EQ(none.opacity, o);
+      EXPECT_FLOAT_EQ(none.sigma_gain, sp);
+      EXPECT_FLOAT_EQ(none.opacity_gain_sigma, 0.f);
+      EXPECT_FLOAT_EQ(none.opacity_gain, 1.f);
+    }
+  // A footprint of no size at all: nothing drawn, no division by zero.
+  const ScreenFootprint zero = screen_footprint(0.f, 0.5f, f);
+  EXPECT_FLOAT_EQ(zero.opacity, 0.f);
+  EXPECT_TRUE(std::isfinite(zero.sigma) && std::isfinite(zero.opacity_gain_sigma));
 }
 
 // The display compositor is the fit's image formation: the sphere's
@@ -370,7 +410,9 @@ TEST(SplatRaster, GradientMatchesFiniteDifferences) {
   const Intrinsics K = ragged_camera();
   const Eigen::Isometry3d T = ring_camera(-40, 20, 1.2);
   const ImageU8 photo = to_u8(render_splats(truth_sphere(), 1, K, T, {0, 0, 0}));
-  auto f = fit_detail::project(cloud, 4, K, T, 1);
+  // The compositing's own gradient, with respect to the footprints as drawn
+  // (the pixel filter lies before them, in project: PixelFilterChainRule).
+  auto f = fit_detail::project(cloud, 4, K, T, 1, 0.f);
   const float black[3] = {0, 0, 0};
   const ImageF depth = depth_target(K);
   const fit_detail::Behind bg{black, nullptr, with_depth ? &depth : nullptr};

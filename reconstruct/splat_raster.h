@@ -15,6 +15,7 @@
 
 #include "core/camera_model.h"
 #include "core/image.h"
+#include "reconstruct/model.h"
 
 namespace s2r {
 struct Splat;
@@ -30,7 +31,10 @@ struct Projected {
   float sigma;        // pixels
   float inv2s2;       // 1 / (2 sigma^2)
   float r2max;        // (3 sigma)^2
-  float o;            // opacity
+  float o;            // opacity (after the pixel filter)
+  // The pixel filter's chain rule (screen_footprint): d sigma / d log
+  // sigma_px, d o / d log sigma_px and d o / d (the facet's opacity).
+  float sigma_gain, opacity_gain_sigma, opacity_gain;
   float c[3];         // colour
   Eigen::Vector3f pc; // camera-frame centre
   float dist;         // |pc|: the centre's distance from the camera, the depth channel's value
@@ -97,7 +101,7 @@ void tile_backward(const SplatFrame& f, int tile, const Behind& bg, TileState& s
 // The facets in front of the camera whose footprints reach the image,
 // sorted near to far, and each tile's list (defined in splat_fit.cpp).
 SplatFrame project(const std::vector<Splat>& splats, int coeffs, const Intrinsics& K,
-                   const Eigen::Isometry3d& world_from_camera, int threads);
+                   const Eigen::Isometry3d& world_from_camera, int threads, float pixel_filter_px2 = kSplatPixelFilterPx2);
 
 // The squared error of one image and, into `grads_out` (per thread, per
 // projected facet; null: the error only), the gradient of the loss: `scale`

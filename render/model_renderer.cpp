@@ -294,6 +294,7 @@ layout(location = 0) in uint a_splat;
 uniform int u_stride;
 uniform int u_coeffs;
 uniform vec3 u_eye;
+uniform float u_pixel_filter;  // px^2: the footprint convolved with it, its energy kept (splat_fit.h)
 flat out vec2 v_centre;
 flat out float v_sigma;
 flat out float v_opacity;
@@ -302,8 +303,10 @@ void main() {
   int b = int(a_splat) * u_stride;
   vec3 c = vec3(sp[b], sp[b + 1], sp[b + 2]);
   vec3 p = (u_view_cfw * vec4(c, 1.0)).xyz;
-  v_sigma = sp[b + 3] * u_view_k.x / max(p.z, 1e-6);
-  v_opacity = sp[b + 4];
+  float s_px = sp[b + 3] * u_view_k.x / max(p.z, 1e-6);
+  float v2 = s_px * s_px + u_pixel_filter;
+  v_sigma = max(sqrt(v2), 1e-4);
+  v_opacity = v2 > 0.0 ? sp[b + 4] * s_px * s_px / v2 : sp[b + 4];
   if (p.z <= u_near_far.x) { gl_Position = vec4(2.0, 2.0, 2.0, 1.0); return; }
   vec4 clip = to_clip(c);
   vec2 ndc = clip.xy / clip.w;
@@ -1027,6 +1030,7 @@ Status ModelRenderer::draw_splats(const Pass& pass, const Framebuffer& target, D
   set_view_uniforms(p, pass.view, pass.near_m, pass.far_m);
   glUniform1i(p.uniform("u_stride"), int(stride));
   glUniform1i(p.uniform("u_coeffs"), model_.splat_layout.coeffs());
+  glUniform1f(p.uniform("u_pixel_filter"), model_.splat_layout.pixel_filter_px2);
   glUniform2f(p.uniform("u_size"), float(target.width()), float(target.height()));
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 2, splat_ssbo_);
   glBindVertexArray(splat_vao_);
@@ -1105,6 +1109,7 @@ Status ModelRenderer::draw_backdrop(const ImageU8& plate, const Framebuffer& tar
 // full-viewport draw: colour + T x what is there.
 Status ModelRenderer::composite_splats_on_cpu(const Pass& pass, const Framebuffer& target, DrawStats& st) {
   SplatCompositeStats cs;
+  compositor_->set_pixel_filter(model_.splat_layout.pixel_filter_px2);
   compositor_->composite(model_.splats, model_.splat_layout.coeffs(), pass.view.K, pass.view.world_from_camera, pass.near_m,
                          composited_, threads_, &cs);
   st.fitted_on_cpu = true;

@@ -440,7 +440,7 @@ TEST(Hybrid, PatchMeshWhereReliableBillboardsElsewhere) {
 
 // Fitted billboards on the square, coloured by its albedo, with a
 // view-dependent term: the GL pass against the fit's own CPU image formation.
-std::vector<Splat> square_splats() {
+std::vector<Splat> square_splats(float sigma_voxels = 0.6f) {
   std::vector<Splat> out;
   const int n = int(std::floor(kHalf / kVoxel));
   for (int i = -n; i <= n; ++i)
@@ -448,7 +448,7 @@ std::vector<Splat> square_splats() {
       Splat s;
       s.anchor = Eigen::Vector3f(float(i * kVoxel), float(j * kVoxel), 0.f);
       s.voxel = float(kVoxel);
-      s.log_sigma = std::log(0.6f * float(kVoxel));
+      s.log_sigma = std::log(sigma_voxels * float(kVoxel));
       s.opacity_logit = 1.5f;
       const auto a = albedo(i * kVoxel, j * kVoxel);
       for (int c = 0; c < 3; ++c) s.sh[size_t(c)] = (a[size_t(c)] / 255.f - 0.5f) / 0.28209479177387814f;
@@ -467,14 +467,23 @@ void put_splats(Model& m, const std::vector<Splat>& splats) {
   }
 }
 
+// Footprints of a few pixels and under a pixel, with the model's pixel
+// filter and without (a model fitted before it): both passes draw the fit's
+// image formation with the model's own filter.
 TEST(Fitted, GlDrawsTheFitsImageFormation) {
+  for (auto [sigma_voxels, filter] : {std::pair{0.6f, kSplatPixelFilterPx2}, std::pair{0.08f, kSplatPixelFilterPx2},
+                                      std::pair{0.08f, 0.f}}) {
+  SCOPED_TRACE(sigma_voxels);
+  SCOPED_TRACE(filter);
   TestModel t = make_model("fitted", kArc);
-  const auto splats = square_splats();
+  const auto splats = square_splats(sigma_voxels);
   put_splats(t.model, splats);
+  t.model.splat_layout.pixel_filter_px2 = filter;
   ASSERT_TRUE(save_model(t.dir, t.model));
   auto loaded = load_model(t.dir);
   ASSERT_TRUE(loaded) << loaded.error().message;
   ASSERT_EQ(loaded->splat_count(), splats.size());
+  EXPECT_FLOAT_EQ(loaded->splat_layout.pixel_filter_px2, filter);
   Gl g = open(t);
   ASSERT_TRUE(g.renderer);
   DrawOptions o = background_options();
@@ -489,7 +498,7 @@ TEST(Fitted, GlDrawsTheFitsImageFormation) {
     EXPECT_EQ(st.fitted_on_cpu, pass == DrawOptions::FittedPass::kCpu);
     EXPECT_EQ(st.selection.drawn, splats.size());
     const std::array<float, 3> bg{kBackground[0] / 255.f, kBackground[1] / 255.f, kBackground[2] / 255.f};
-    const ImageF cpu = render_splats(splats, 4, v.K, v.world_from_camera, bg);
+    const ImageF cpu = render_splats(splats, 4, v.K, v.world_from_camera, bg, nullptr, 0, filter);
     ImageU8 ref(cpu.width, cpu.height, 3);
     for (size_t i = 0; i < cpu.data.size(); ++i) ref.data[i] = uint8_t(std::lround(std::clamp(cpu.data[i], 0.f, 1.f) * 255));
     const double p = *psnr(drawn, ref);
@@ -497,6 +506,13 @@ TEST(Fitted, GlDrawsTheFitsImageFormation) {
     if (st.fitted_on_cpu) {
       EXPECT_GT(p, 50.0) << "at " << deg << " degrees: the same image formation, rounded once";
     }
+    if (sigma_voxels < 0.1f) {  // footprints under a pixel: the filter is not a no-op here
+      const ImageF other = render_splats(splats, 4, v.K, v.world_from_camera, bg, nullptr, 0, filter > 0 ? 0.f : kSplatPixelFilterPx2);
+      ImageU8 o8(other.width, other.height, 3);
+      for (size_t i = 0; i < other.data.size(); ++i) o8.data[i] = uint8_t(std::lround(std::clamp(other.data[i], 0.f, 1.f) * 255));
+      EXPECT_LT(*psnr(o8, ref), 35.0) << "at " << deg << " degrees";
+    }
+  }
   }
 }
 
