@@ -268,6 +268,7 @@ void BM_SplatComposite(benchmark::State& state) {
   K.fx *= s, K.fy *= s, K.cx = (K.cx + 0.5) * s - 0.5, K.cy = (K.cy + 0.5) * s - 0.5;
   SplatCompositor c;
   c.set_lanes(int(state.range(0)));
+  c.set_pixel_filter(model->splat_layout.pixel_filter_px2);
   std::vector<float> rgba;
   int view = 0;
   for (auto _ : state) {
@@ -308,7 +309,7 @@ void BM_SplatFitRaster(benchmark::State& state) {
       const double s = 800.0 / K.width;
       K.width = 800, K.height = int(std::lround(K.height * s));
       K.fx *= s, K.fy *= s, K.cx = (K.cx + 0.5) * s - 0.5, K.cy = (K.cy + 0.5) * s - 0.5;
-      out.push_back(fit_detail::project(splats, coeffs, K, m->cameras[v].world_from_camera, 0));
+      out.push_back(fit_detail::project(splats, coeffs, K, m->cameras[v].world_from_camera, 0, m->splat_layout.pixel_filter_px2));
     }
     return out;
   }();
