@@ -45,14 +45,18 @@ json.dump({"format": "s2r.view", "version": 1,
 EOF
 }
 
+# The interactive part (orbit, pan, zoom, another camera: about 15 s of
+# software rendering each time) runs for the first export only.
 check() {  # NAME MODEL CAMERA DEGREES [MIN_PSNR [EXPORT ARGS...]]
-  local name=$1 model=$2 min=${5:-30}
+  local name=$1 model=$2 min=${5:-30} interact=0
+  [ -e checked-once ] || interact=1
+  touch checked-once
   "$s2r" -q export web "$model" --out "$name-web" "${@:6}" >"$name-export.log" 2>&1 || fail "$name export: $(cat "$name-export.log")"
   make_view "$name-web/model.json" "$3" "$4" "$name-view.json"
   quiet "$s2r" render "$model" --pose "$name-view.json" --out "$name-render.png"
   local out code=0
   out=$(node "$here/tools/node/web_check.mjs" --dir "$name-web" --view "$name-view.json" --ref "$name-render.png" \
-    --out "$name-browser.png" --min-psnr "$min") || code=$?
+    --out "$name-browser.png" --min-psnr "$min" --interact $interact) || code=$?
   echo "$name: $out"
   echo "$name: payload $(du -sb "$name-web" | cut -f1) bytes"
   [ $code -ne 2 ] || skip "Chromium did not start: $out"

@@ -3,13 +3,14 @@
 // loopback, at the pose of an s2r.view file; waits for the first frame;
 // saves the canvas as PNG; compares it with a reference image (what
 // `s2r render --pose` drew) decoded by the browser itself; reports every
-// console error and uncaught exception; then opens it as a person would and
-// checks that orbit, pan, zoom and a jump to another camera each draw. Prints one JSON line; exit 0 when the
+// console error and uncaught exception; then (unless --interact 0) opens it
+// as a person would and checks that orbit, pan, zoom and a jump to another
+// camera each draw (about 15 s of software rendering). Prints one JSON line; exit 0 when the
 // page drew without errors and PSNR >= --min-psnr, 1 otherwise, 2 on a usage
 // or start-up problem.
 //
 // node tools/node/web_check.mjs --dir EXPORT --view VIEW.json --ref REF.png
-//      --out SHOT.png [--min-psnr 30] [--chromium /usr/bin/chromium] [--timeout-ms 120000]
+//      --out SHOT.png [--min-psnr 30] [--interact 1] [--chromium /usr/bin/chromium] [--timeout-ms 120000]
 import fs from 'fs';
 import http from 'http';
 import path from 'path';
@@ -21,6 +22,7 @@ for (const k of ['dir', 'view', 'ref', 'out'])
   if (!args[k]) { console.error(`web_check: --${k} is required`); process.exit(2); }
 const minPsnr = Number(args['min-psnr'] ?? 30);
 const timeout = Number(args['timeout-ms'] ?? 120000);
+const interact = (args.interact ?? '1') !== '0';
 
 const files = { '/view.json': path.resolve(args.view), '/reference.png': path.resolve(args.ref) };
 const types = { '.html': 'text/html', '.js': 'text/javascript', '.json': 'application/json', '.png': 'image/png' };
@@ -91,7 +93,7 @@ const result = await page.evaluate(async () => {
 // (orbit), a right drag (pan), the wheel (zoom) and a jump to another
 // camera, each drawing a new frame.
 const interaction = { frames: 0, changed: 0 };
-{
+if (interact) {
   const p2 = await browser.newPage({ viewport: { width: 800, height: 600 }, deviceScaleFactor: 1 });
   p2.on('console', (m) => { if (m.type() === 'error') errors.push(`console (interactive): ${m.text()}`); });
   p2.on('pageerror', (e) => errors.push(`exception (interactive): ${e.message}`));
