@@ -149,6 +149,11 @@ void add_reconstruct(CLI::App& app, Chosen& chosen) {
                   "as its share of the pixel, not as speckle; 0: none")
       ->check(CLI::Range(0.0, 4.0))
       ->capture_default_str();
+  sub->add_option("--fit-split", job.fit_split,
+                  "which facets refinement splits first: usage (the most pixel weight) or gradient (the largest mean "
+                  "pull on their image position, as 3D Gaussian Splatting densifies)")
+      ->check(CLI::IsMember({"usage", "gradient"}))
+      ->capture_default_str();
   sub->add_option("--fit-depth", job.fit_depth_weight,
                   "captures with depth: the fit's loss adds W x the squared distance (in voxels) of each pixel's opacity "
                   "from the fused depth surface, so facets stay on the surface the depth camera saw; 0: colour alone")

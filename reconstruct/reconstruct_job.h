@@ -73,6 +73,7 @@ struct ReconstructJob {
   double fit_ssim_weight = 0.2;
   // The fitted billboards' pixel filter, pixels^2 (splat_fit.h; 0: none).
   double fit_pixel_filter_px2 = kSplatPixelFilterPx2;
+  std::string fit_split = "gradient";     // which facets refinement splits first: usage | gradient (SplatFitOptions::split_by)
   double fit_depth_weight = 0;         // the fit's depth term where the capture has depth (SplatFitOptions::depth_weight)
   std::vector<double> fit_snapshots;  // seconds: also write splats_<s>s.bin at these (error against run time)
   int threads = 0;

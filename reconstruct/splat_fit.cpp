@@ -694,7 +694,7 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
     }
   }
   std::mt19937 rng(7);
-  std::vector<float> m, v, used;
+  std::vector<float> m, v, used, pull, drawn_steps;
   long step = 0;
   int epoch = 0;
   std::vector<std::vector<Grad>> grads;
@@ -737,10 +737,13 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
     if (si > 0 && stage_epochs > 0) {
       // Refinement: drop what the photos do not need (nearly transparent, or
       // under one pixel's weight per pass over the photos: hidden inside),
-      // split the rest, the most used first, up to max_facets.
+      // split the rest up to max_facets: first those the photos pull hardest
+      // (the mean gradient of their image position) or the most used.
+      const bool by_gradient = o.split_by == SplatFitOptions::SplitBy::gradient;
       std::vector<std::pair<float, size_t>> keep;
       for (size_t i = 0; i < splats.size(); ++i)
-        if (splats[i].opacity() >= o.prune_opacity && used[i] >= stage_epochs) keep.push_back({-used[i], i});
+        if (splats[i].opacity() >= o.prune_opacity && used[i] >= stage_epochs)
+          keep.push_back({by_gradient ? -pull[i] / std::max(1.f, drawn_steps[i]) : -used[i], i});
       std::sort(keep.begin(), keep.end());
       sum.pruned += splats.size() - keep.size();
       sum.refined_from = keep.size();
@@ -756,6 +759,8 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
     m.assign(splats.size() * size_t(np), 0.f);
     v.assign(splats.size() * size_t(np), 0.f);
     used.assign(splats.size(), 0.f);
+    pull.assign(splats.size(), 0.f);
+    drawn_steps.assign(splats.size(), 0.f);
     long stage_steps = 0;
     stage_epochs = 0;
     const double stage_start = elapsed();
@@ -812,6 +817,8 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
             const Projected& pr = f.p[i];
             Splat& s = splats[pr.id];
             used[pr.id] += gr.weight;
+            pull[pr.id] += std::hypot(gr.u, gr.v);
+            drawn_steps[pr.id] += 1.f;
             // Chain rule to the parameters.
             const float z = pr.pc.z();
             // d loss / d log sigma_px, through the pixel filter's sigma and opacity.
