@@ -47,10 +47,10 @@ EOF
 
 # The interactive part (orbit, pan, zoom, another camera: about 15 s of
 # software rendering each time) runs for the first export only.
+interactive=1
 check() {  # NAME MODEL CAMERA DEGREES [MIN_PSNR [EXPORT ARGS...]]
-  local name=$1 model=$2 min=${5:-30} interact=0
-  [ -e checked-once ] || interact=1
-  touch checked-once
+  local name=$1 model=$2 min=${5:-30} interact=$interactive
+  interactive=0
   "$s2r" -q export web "$model" --out "$name-web" "${@:6}" >"$name-export.log" 2>&1 || fail "$name export: $(cat "$name-export.log")"
   make_view "$name-web/model.json" "$3" "$4" "$name-view.json"
   quiet "$s2r" render "$model" --pose "$name-view.json" --out "$name-render.png"
