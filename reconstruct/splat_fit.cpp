@@ -80,6 +80,7 @@ SplatFrame fit_detail::project(const std::vector<Splat>& splats, int coeffs, con
   parallel_for(workers, workers, [&](int w) {
     auto& out = part[size_t(w)];
     const int lo = int(int64_t(n) * w / workers), hi = int(int64_t(n) * (w + 1) / workers);
+    out.reserve(size_t(hi - lo));
     float basis[kMaxShCoeffs];
     for (int i = lo; i < hi; ++i) {
       const Splat& s = splats[size_t(i)];
@@ -96,14 +97,21 @@ SplatFrame fit_detail::project(const std::vector<Splat>& splats, int coeffs, con
         v = float(K.fy) * pc.y() / pc.z() + float(K.cy);
       }
       const ScreenFootprint fp = screen_footprint(s.sigma() * float(K.fx) / pc.z(), s.opacity(), pixel_filter_px2);
-      const float r = kCut * fp.sigma;
-      if (u + r < -0.5f || v + r < -0.5f || u - r > K.width - 0.5f || v - r > K.height - 0.5f) continue;
       if (fp.opacity < kSplatAlphaMin) continue;
+      const float sigma = std::max(fp.sigma, 1e-4f), r = kCut * fp.sigma;
+      // A faint facet's alpha falls under 1/255 inside the cut: the passes
+      // visit only that disc's box (a hair past it: the alpha test, with the
+      // same exp, decides its edge pixels), the same pixels as the cut's box
+      // (as the viewer's compositor lists its tiles).
+      const float r2box = sigma * sigma * std::min(kCut * kCut, 2.f * std::log(std::max(255.f * fp.opacity, 1.f)) + 1e-3f);
+      const float rb = std::sqrt(r2box);
+      if (u + rb < -0.5f || v + rb < -0.5f || u - rb > K.width - 0.5f || v - rb > K.height - 0.5f) continue;
       Projected p;
       p.u = u, p.v = v;
-      p.sigma = std::max(fp.sigma, 1e-4f);
-      p.inv2s2 = 0.5f / (p.sigma * p.sigma);
+      p.sigma = sigma;
+      p.inv2s2 = 0.5f / (sigma * sigma);
       p.r2max = r * r;
+      p.r2box = r2box;
       p.o = fp.opacity;
       p.sigma_gain = fp.sigma_gain, p.opacity_gain_sigma = fp.opacity_gain_sigma, p.opacity_gain = fp.opacity_gain;
       p.pc = pc;
@@ -120,14 +128,16 @@ SplatFrame fit_detail::project(const std::vector<Splat>& splats, int coeffs, con
       out.push_back(p);
     }
   });
-  // Depth keys of the parts' facets, in part order (their index in that
-  // concatenation), sorted; the facets gathered in depth order.
+  // The parts concatenated (ascending ids), and their depth keys sorted:
+  // the tile lists are filled in that order, the facets stay in id order.
   std::vector<size_t> offset(part.size() + 1, 0);
   for (size_t w = 0; w < part.size(); ++w) offset[w + 1] = offset[w] + part[w].size();
   const size_t total = offset.back();
+  f.p.resize(total);
   std::vector<std::pair<uint32_t, uint32_t>> keys(total);
   parallel_for(workers, workers, [&](int w) {
     const auto& in = part[size_t(w)];
+    std::copy(in.begin(), in.end(), f.p.begin() + std::ptrdiff_t(offset[size_t(w)]));
     for (size_t j = 0; j < in.size(); ++j) {
       uint32_t bits;
       std::memcpy(&bits, &in[j].pc.z(), 4);
@@ -135,15 +145,6 @@ SplatFrame fit_detail::project(const std::vector<Splat>& splats, int coeffs, con
     }
   });
   radix_sort(keys);
-  f.p.resize(total);
-  constexpr size_t kChunk = 16384;
-  parallel_for(int((total + kChunk - 1) / kChunk), threads, [&](int c) {
-    for (size_t i = size_t(c) * kChunk; i < std::min(total, size_t(c + 1) * kChunk); ++i) {
-      const size_t g = keys[i].second;
-      const size_t w = size_t(std::upper_bound(offset.begin(), offset.end(), g) - offset.begin()) - 1;
-      f.p[i] = part[w][g - offset[w]];
-    }
-  });
   // Tile lists in depth order: counted and filled by each thread over its
   // own share of the sorted facets (a tile's entries from share k follow
   // those of share k - 1), the tile ranges kept from the count to the fill.
@@ -157,8 +158,8 @@ SplatFrame fit_detail::project(const std::vector<Splat>& splats, int coeffs, con
     share(k, lo, hi);
     uint32_t* count = &counts[size_t(k) * tiles];
     for (size_t i = lo; i < hi; ++i) {
-      const Projected& p = f.p[i];
-      const float r = std::sqrt(p.r2max);
+      const Projected& p = f.p[keys[i].second];
+      const float r = std::sqrt(p.r2box);
       const int x0 = std::max(0, int(std::floor((p.u - r + 0.5f) / kTile)));
       const int x1 = std::min(f.tiles_x - 1, int(std::floor((p.u + r + 0.5f) / kTile)));
       const int y0 = std::max(0, int(std::floor((p.v - r + 0.5f) / kTile)));
@@ -186,7 +187,7 @@ SplatFrame fit_detail::project(const std::vector<Splat>& splats, int coeffs, con
     for (size_t i = lo; i < hi; ++i) {
       const auto [x0, x1, y0, y1] = span[i];
       for (int ty = y0; ty <= y1; ++ty)
-        for (int tx = x0; tx <= x1; ++tx) f.tile_list[fill[size_t(ty) * f.tiles_x + tx]++] = uint32_t(i);
+        for (int tx = x0; tx <= x1; ++tx) f.tile_list[fill[size_t(ty) * f.tiles_x + tx]++] = keys[i].second;
     }
   });
   return f;
@@ -804,9 +805,12 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
         const float c1 = 1.f - std::pow(b1, float(stage_steps)), c2 = 1.f - std::pow(b2, float(stage_steps));
         const Eigen::Matrix3f R = view.world_from_camera.rotation().cast<float>();
         const Eigen::Vector3f eye = view.world_from_camera.translation().cast<float>();
+        // The projected facets are in the facets' order: parameters, moments
+        // and gradients are read in sequence.
         parallel_for(int(f.p.size() + 8191) / 8192, o.threads, [&](int chunk) {
           float basis[kMaxShCoeffs], p[5 + 3 * kMaxShCoeffs], g[5 + 3 * kMaxShCoeffs];
-          for (size_t i = size_t(chunk) * 8192; i < std::min(f.p.size(), size_t(chunk + 1) * 8192); ++i) {
+          const size_t end = std::min(f.p.size(), size_t(chunk + 1) * 8192);
+          for (size_t i = size_t(chunk) * 8192; i < end; ++i) {
             Grad gr{};
             for (const auto& tg : grads) {
               const Grad& q = tg[i];

@@ -28,7 +28,7 @@ inline float fast_exp(float x) {
 
 // The footprint's pixel box inside the tile, tile coordinates; false when empty.
 inline bool footprint(const Projected& p, const TileState& st, int& xa, int& xb, int& ya, int& yb) {
-  const float r = std::sqrt(p.r2max);
+  const float r = std::sqrt(p.r2box);
   xa = std::max(0, int(std::ceil(p.u - r)) - st.x0), xb = std::min(st.w - 1, int(std::floor(p.u + r)) - st.x0);
   ya = std::max(0, int(std::ceil(p.v - r)) - st.y0), yb = std::min(st.h - 1, int(std::floor(p.v + r)) - st.y0);
   return xa <= xb && ya <= yb;

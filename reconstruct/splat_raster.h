@@ -30,7 +30,8 @@ struct Projected {
   float u, v;         // centre, pixels
   float sigma;        // pixels
   float inv2s2;       // 1 / (2 sigma^2)
-  float r2max;        // (3 sigma)^2
+  float r2max;        // (3 sigma)^2: the cut
+  float r2box;        // squared radius of the box a pass visits: the cut, or a hair past where alpha falls under 1/255 if nearer
   float o;            // opacity (after the pixel filter)
   // The pixel filter's chain rule (screen_footprint): d sigma / d log
   // sigma_px, d o / d log sigma_px and d o / d (the facet's opacity).
@@ -42,8 +43,8 @@ struct Projected {
   uint8_t clamped;    // bit per channel: the colour was clamped at 0
 };
 
-// The projected facets of one image, sorted near to far, and each tile's
-// list of them (indices into `p`, near to far).
+// The projected facets of one image (ascending ids), and each tile's list
+// of them (indices into `p`, near to far).
 struct SplatFrame {
   int width = 0, height = 0, tiles_x = 0, tiles_y = 0;
   std::vector<Projected> p;
@@ -98,8 +99,9 @@ void tile_forward(const SplatFrame& f, int tile, const Behind& bg, TileState& st
 void tile_backward(const SplatFrame& f, int tile, const Behind& bg, TileState& st, const float* dC, Grad* G,
                    int lanes = 0);
 
-// The facets in front of the camera whose footprints reach the image,
-// sorted near to far, and each tile's list (defined in splat_fit.cpp).
+// The facets in front of the camera whose footprints reach the image, in
+// id order, and each tile's list of them near to far (defined in
+// splat_fit.cpp).
 SplatFrame project(const std::vector<Splat>& splats, int coeffs, const Intrinsics& K,
                    const Eigen::Isometry3d& world_from_camera, int threads, float pixel_filter_px2 = kSplatPixelFilterPx2);
 
