@@ -319,11 +319,10 @@ void SplatCompositor::composite(const std::vector<float>& records, int coeffs, c
   if (stats) *stats = st;
 }
 
-bool order_splats_spatially(std::vector<float>& records, int stride) {
-  const size_t n = records.size() / size_t(stride);
-  if (n < 2) return false;
+std::vector<uint32_t> morton_order(size_t n, const std::function<Eigen::Vector3f(size_t)>& point) {
+  if (n < 2) return {};
   Eigen::AlignedBox3f box;
-  for (size_t i = 0; i < n; ++i) box.extend(Eigen::Vector3f(&records[i * size_t(stride)]));
+  for (size_t i = 0; i < n; ++i) box.extend(point(i));
   const Eigen::Vector3f scale = (box.sizes().array().max(1e-9f)).inverse().matrix() * 2097151.f;  // 21 bits an axis
   auto spread = [](uint64_t v) {  // 21 bits to every third of 63
     v &= 0x1fffff;
@@ -337,15 +336,23 @@ bool order_splats_spatially(std::vector<float>& records, int stride) {
   std::vector<std::pair<uint64_t, uint32_t>> key(n);
   bool sorted = true;
   for (size_t i = 0; i < n; ++i) {
-    const Eigen::Vector3f q = (Eigen::Vector3f(&records[i * size_t(stride)]) - box.min()).cwiseProduct(scale);
+    const Eigen::Vector3f q = (point(i) - box.min()).cwiseProduct(scale);
     key[i] = {spread(uint64_t(q.x())) | spread(uint64_t(q.y())) << 1 | spread(uint64_t(q.z())) << 2, uint32_t(i)};
     if (i && key[i].first < key[i - 1].first) sorted = false;
   }
-  if (sorted) return false;
+  if (sorted) return {};
   std::sort(key.begin(), key.end());
+  std::vector<uint32_t> order(n);
+  for (size_t i = 0; i < n; ++i) order[i] = key[i].second;
+  return order;
+}
+
+bool order_splats_spatially(std::vector<float>& records, int stride) {
+  const size_t n = records.size() / size_t(stride);
+  const auto order = morton_order(n, [&](size_t i) { return Eigen::Vector3f(&records[i * size_t(stride)]); });
+  if (order.empty()) return false;
   std::vector<float> out(records.size());
-  for (size_t i = 0; i < n; ++i)
-    std::copy_n(&records[size_t(key[i].second) * size_t(stride)], stride, &out[i * size_t(stride)]);
+  for (size_t i = 0; i < n; ++i) std::copy_n(&records[size_t(order[i]) * size_t(stride)], stride, &out[i * size_t(stride)]);
   records.swap(out);
   return true;
 }

@@ -12,6 +12,7 @@
 #pragma once
 
 #include <cstddef>
+#include <functional>
 #include <memory>
 #include <vector>
 
@@ -63,6 +64,10 @@ class SplatCompositor {
 // in memory; the image formation does not depend on the order (depth ties
 // aside). Returns false when they were already in that order.
 bool order_splats_spatially(std::vector<float>& records, int stride);
+
+// The order of n points (point(i)) along a Morton curve in their bounding
+// box; empty when they are already in it.
+std::vector<uint32_t> morton_order(size_t n, const std::function<Eigen::Vector3f(size_t)>& point);
 
 void composite_splats(const std::vector<float>& records, int coeffs, const Intrinsics& K,
                       const Eigen::Isometry3d& world_from_camera, double near_m, std::vector<float>& rgba_out, int threads = 0,

@@ -15,6 +15,7 @@
 
 #include "core/image_metrics.h"
 #include "core/parallel.h"
+#include "reconstruct/splat_composite.h"
 #include "reconstruct/splat_raster.h"
 
 namespace s2r {
@@ -39,9 +40,11 @@ float logit(float p) { return std::log(p / (1.f - p)); }
 
 }  // namespace
 
-void radix_sort(std::vector<std::pair<uint32_t, uint32_t>>& a) {
+void radix_sort(std::vector<std::pair<uint32_t, uint32_t>>& a, std::vector<std::pair<uint32_t, uint32_t>>* scratch) {
   if (a.size() < 2) return;
-  std::vector<std::pair<uint32_t, uint32_t>> tmp(a.size());
+  std::vector<std::pair<uint32_t, uint32_t>> own;
+  auto& tmp = scratch ? *scratch : own;
+  tmp.resize(a.size());
   for (int shift = 0; shift < 32; shift += 8) {
     size_t count[257] = {};
     for (const auto& e : a) ++count[((e.first >> shift) & 0xff) + 1];
@@ -69,6 +72,12 @@ Intrinsics scaled(const Intrinsics& K, int s) {
 SplatFrame fit_detail::project(const std::vector<Splat>& splats, int coeffs, const Intrinsics& K,
                                const Eigen::Isometry3d& world_from_camera, int threads, float pixel_filter_px2) {
   SplatFrame f;
+  project_into(f, splats, coeffs, K, world_from_camera, threads, pixel_filter_px2);
+  return f;
+}
+
+void fit_detail::project_into(SplatFrame& f, const std::vector<Splat>& splats, int coeffs, const Intrinsics& K,
+                              const Eigen::Isometry3d& world_from_camera, int threads, float pixel_filter_px2) {
   f.width = K.width, f.height = K.height;
   f.tiles_x = (K.width + kTile - 1) / kTile, f.tiles_y = (K.height + kTile - 1) / kTile;
   const Eigen::Isometry3f cfw = world_from_camera.inverse().cast<float>();
@@ -76,10 +85,12 @@ SplatFrame fit_detail::project(const std::vector<Splat>& splats, int coeffs, con
   const bool lens = K.has_distortion();
   const int n = int(splats.size());
   const int workers = std::max(1, std::min(worker_count(threads), n / 4096 + 1));
-  std::vector<std::vector<Projected>> part{size_t(workers)};
+  auto& part = f.scratch.part;
+  part.resize(size_t(workers));
   parallel_for(workers, workers, [&](int w) {
     auto& out = part[size_t(w)];
     const int lo = int(int64_t(n) * w / workers), hi = int(int64_t(n) * (w + 1) / workers);
+    out.clear();
     out.reserve(size_t(hi - lo));
     float basis[kMaxShCoeffs];
     for (int i = lo; i < hi; ++i) {
@@ -134,7 +145,8 @@ SplatFrame fit_detail::project(const std::vector<Splat>& splats, int coeffs, con
   for (size_t w = 0; w < part.size(); ++w) offset[w + 1] = offset[w] + part[w].size();
   const size_t total = offset.back();
   f.p.resize(total);
-  std::vector<std::pair<uint32_t, uint32_t>> keys(total);
+  auto& keys = f.scratch.keys;
+  keys.resize(total);
   parallel_for(workers, workers, [&](int w) {
     const auto& in = part[size_t(w)];
     std::copy(in.begin(), in.end(), f.p.begin() + std::ptrdiff_t(offset[size_t(w)]));
@@ -144,14 +156,16 @@ SplatFrame fit_detail::project(const std::vector<Splat>& splats, int coeffs, con
       keys[offset[size_t(w)] + j] = {bits, uint32_t(offset[size_t(w)] + j)};
     }
   });
-  radix_sort(keys);
+  radix_sort(keys, &f.scratch.keys_tmp);
   // Tile lists in depth order: counted and filled by each thread over its
   // own share of the sorted facets (a tile's entries from share k follow
   // those of share k - 1), the tile ranges kept from the count to the fill.
   const size_t tiles = size_t(f.tiles_x) * f.tiles_y;
   const int shares = std::max(1, std::min(worker_count(threads), int(total / 65536) + 1));
-  std::vector<uint32_t> counts(size_t(shares) * tiles, 0);
-  std::vector<std::array<uint16_t, 4>> span(total);
+  auto& counts = f.scratch.counts;
+  counts.assign(size_t(shares) * tiles, 0);
+  auto& span = f.scratch.span;
+  span.resize(total);
   auto share = [&](int k, size_t& lo, size_t& hi) { lo = total * size_t(k) / size_t(shares), hi = total * size_t(k + 1) / size_t(shares); };
   parallel_for(shares, shares, [&](int k) {
     size_t lo, hi;
@@ -190,7 +204,6 @@ SplatFrame fit_detail::project(const std::vector<Splat>& splats, int coeffs, con
         for (int tx = x0; tx <= x1; ++tx) f.tile_list[fill[size_t(ty) * f.tiles_x + tx]++] = keys[i].second;
     }
   });
-  return f;
 }
 
 namespace {
@@ -699,6 +712,7 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
   long step = 0;
   int epoch = 0;
   std::vector<std::vector<Grad>> grads;
+  SplatFrame f;  // each step's projection, its storage reused
   std::vector<int> order(views.size());
   std::iota(order.begin(), order.end(), 0);
   size_t next_mark = 0;
@@ -757,6 +771,14 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
       splats = split_splats(parents);
       splats.insert(splats.end(), whole.begin(), whole.end());
     }
+    // Along a Morton curve: the facets of one screen tile lie near each other
+    // in memory, as the passes and the step read them.
+    if (const auto ord = morton_order(splats.size(), [&](size_t i) { return splats[i].centre(); }); !ord.empty()) {
+      std::vector<Splat> sorted;
+      sorted.reserve(splats.size());
+      for (uint32_t i : ord) sorted.push_back(splats[i]);
+      splats.swap(sorted);
+    }
     m.assign(splats.size() * size_t(np), 0.f);
     v.assign(splats.size() * size_t(np), 0.f);
     used.assign(splats.size(), 0.f);
@@ -790,7 +812,7 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
         ImageU8 moved;
         const auto [target, bg] = step_target(size_t(vi), scale, *photos[size_t(vi)], rng, colour, moved);
         const double t_a = elapsed();
-        const SplatFrame f = project(splats, coeffs, K, view.world_from_camera, o.threads, filter);
+        project_into(f, splats, coeffs, K, view.world_from_camera, o.threads, filter);
         const double t_b = elapsed();
         const float inv = 1.f / float(3.0 * K.width * K.height);
         sq += forward_backward(f, *target, bg, inv, o.threads, &grads, float(o.ssim_weight), 0, depth_scale, &dsq, &dpx);

@@ -94,7 +94,8 @@ inline int sh_coeffs(int degree) { return (degree + 1) * (degree + 1); }
 // LSD radix sort of (key, index) pairs by key (a positive float's bits sort
 // as the float): the facets' depth order, per photo in the fit and per frame
 // in the renderer.
-void radix_sort(std::vector<std::pair<uint32_t, uint32_t>>& pairs);
+void radix_sort(std::vector<std::pair<uint32_t, uint32_t>>& pairs,
+                std::vector<std::pair<uint32_t, uint32_t>>* scratch = nullptr);
 
 // The fit's divergence test, epoch by epoch: an epoch's training PSNR more
 // than 0.5 dB under the error before any step (the first stage, at the scale

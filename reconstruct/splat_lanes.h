@@ -10,6 +10,10 @@
 #include <bit>
 #include <cstdint>
 
+#if defined(__x86_64__)
+#include <immintrin.h>
+#endif
+
 namespace s2r::simd {
 
 template <int N>
@@ -90,6 +94,26 @@ struct Lanes {
   [[gnu::always_inline]] static inline void store(float* p, f v) { __builtin_memcpy(p, &v, sizeof v); }
   [[gnu::always_inline]] static inline void store(int32_t* p, i v) { __builtin_memcpy(p, &v, sizeof v); }
 };
+
+#if defined(__x86_64__)
+// On x86-64 a mask's lanes read at once (the lanes' masks are 0 or -1).
+template <>
+[[gnu::always_inline]] inline bool Lanes<4>::any_set(i m) {
+  return _mm_movemask_ps(std::bit_cast<__m128>(m)) != 0;
+}
+template <>
+[[gnu::always_inline]] inline bool Lanes<4>::all_set(i m) {
+  return _mm_movemask_ps(std::bit_cast<__m128>(m)) == 0xf;
+}
+template <>
+[[gnu::target("avx2")]] inline bool Lanes<8>::any_set(i m) {
+  return _mm256_movemask_ps(std::bit_cast<__m256>(m)) != 0;
+}
+template <>
+[[gnu::target("avx2")]] inline bool Lanes<8>::all_set(i m) {
+  return _mm256_movemask_ps(std::bit_cast<__m256>(m)) == 0xff;
+}
+#endif
 
 // Whether this processor runs the 8-lane (AVX2) functions.
 inline bool has_avx2() {

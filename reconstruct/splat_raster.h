@@ -49,6 +49,15 @@ struct SplatFrame {
   int width = 0, height = 0, tiles_x = 0, tiles_y = 0;
   std::vector<Projected> p;
   std::vector<uint32_t> tile_start, tile_list;
+  // project_into's working space, kept with the frame so that a fit's steps
+  // reuse it (at 600,000 facets some 60 MB a step the allocator would
+  // otherwise map and fault in afresh).
+  struct Scratch {
+    std::vector<std::vector<Projected>> part;
+    std::vector<std::pair<uint32_t, uint32_t>> keys, keys_tmp;
+    std::vector<std::array<uint16_t, 4>> span;
+    std::vector<uint32_t> counts;
+  } scratch;
 };
 
 // Per projected facet, what one thread's pixels owe it: the loss's
@@ -104,6 +113,9 @@ void tile_backward(const SplatFrame& f, int tile, const Behind& bg, TileState& s
 // splat_fit.cpp).
 SplatFrame project(const std::vector<Splat>& splats, int coeffs, const Intrinsics& K,
                    const Eigen::Isometry3d& world_from_camera, int threads, float pixel_filter_px2 = kSplatPixelFilterPx2);
+// The same into `f`, reusing its storage.
+void project_into(SplatFrame& f, const std::vector<Splat>& splats, int coeffs, const Intrinsics& K,
+                  const Eigen::Isometry3d& world_from_camera, int threads, float pixel_filter_px2 = kSplatPixelFilterPx2);
 
 // The squared error of one image and, into `grads_out` (per thread, per
 // projected facet; null: the error only), the gradient of the loss: `scale`
