@@ -282,35 +282,74 @@ void BM_SplatComposite(benchmark::State& state) {
 }
 BENCHMARK(BM_SplatComposite)->Arg(4)->Arg(0)->Unit(benchmark::kMillisecond);
 
-// One step of the fit's rasterizer (forward and back through every tile,
-// the gradient of the squared error) at 800 x 800, for a fitted model's
-// facets (S2R_SPLAT_MODEL, as above) at its first cameras; the argument is
-// the lanes (1: the scalar reference, 4, 0: the widest this processor has).
-void BM_SplatFitRaster(benchmark::State& state) {
-  static const std::optional<std::vector<fit_detail::SplatFrame>> frames = []() -> std::optional<std::vector<fit_detail::SplatFrame>> {
+// A fitted model's facets (S2R_SPLAT_MODEL, as above) as the fit holds them,
+// and its first cameras scaled to 800 pixels wide.
+struct FitInput {
+  std::vector<Splat> splats;
+  int coeffs = 1;
+  float pixel_filter = 0;
+  std::vector<std::pair<Intrinsics, Eigen::Isometry3d>> cameras;
+};
+const FitInput* fit_input() {
+  static const std::optional<FitInput> input = []() -> std::optional<FitInput> {
     const char* dir = std::getenv("S2R_SPLAT_MODEL");
     if (!dir) return std::nullopt;
     auto m = load_model(dir);
     if (!m || m->splats.empty() || m->cameras.empty()) return std::nullopt;
-    const int stride = m->splat_layout.stride(), coeffs = m->splat_layout.coeffs();
-    std::vector<Splat> splats(m->splat_count());
-    for (size_t i = 0; i < splats.size(); ++i) {
+    FitInput in;
+    const int stride = m->splat_layout.stride();
+    in.coeffs = m->splat_layout.coeffs();
+    in.pixel_filter = m->splat_layout.pixel_filter_px2;
+    in.splats.resize(m->splat_count());
+    for (size_t i = 0; i < in.splats.size(); ++i) {
       const float* r = &m->splats[i * size_t(stride)];
-      Splat& s = splats[i];
+      Splat& s = in.splats[i];
       s.anchor = Eigen::Vector3f(r[0], r[1], r[2]);
       s.voxel = 1;
       s.log_sigma = std::log(r[3]);
       s.opacity_logit = std::log(r[4] / (1.f - r[4]));
-      for (int k = 0; k < 3 * coeffs; ++k) s.sh[size_t(k)] = r[5 + k];
+      for (int k = 0; k < 3 * in.coeffs; ++k) s.sh[size_t(k)] = r[5 + k];
     }
-    std::vector<fit_detail::SplatFrame> out;
     for (size_t v = 0; v < std::min<size_t>(4, m->cameras.size()); ++v) {
       Intrinsics K = m->cameras[v].intrinsics;
       const double s = 800.0 / K.width;
       K.width = 800, K.height = int(std::lround(K.height * s));
       K.fx *= s, K.fy *= s, K.cx = (K.cx + 0.5) * s - 0.5, K.cy = (K.cy + 0.5) * s - 0.5;
-      out.push_back(fit_detail::project(splats, coeffs, K, m->cameras[v].world_from_camera, 0, m->splat_layout.pixel_filter_px2));
+      in.cameras.emplace_back(K, m->cameras[v].world_from_camera);
     }
+    return in;
+  }();
+  return input ? &*input : nullptr;
+}
+
+// One step's projection in the fit (every facet projected, sorted by depth,
+// listed per tile) into a frame whose storage is reused, as the fit does.
+void BM_SplatFitProject(benchmark::State& state) {
+  const FitInput* in = fit_input();
+  if (!in) {
+    state.SkipWithError("S2R_SPLAT_MODEL: not a fitted model folder");
+    return;
+  }
+  fit_detail::SplatFrame f;
+  size_t view = 0;
+  for (auto _ : state) {
+    const auto& [K, T] = in->cameras[view++ % in->cameras.size()];
+    fit_detail::project_into(f, in->splats, in->coeffs, K, T, 0, in->pixel_filter);
+    benchmark::DoNotOptimize(f.tile_list.data());
+  }
+}
+BENCHMARK(BM_SplatFitProject)->Unit(benchmark::kMillisecond);
+
+// One step of the fit's rasterizer (forward and back through every tile,
+// the gradient of the squared error) at 800 x 800, for a fitted model's
+// facets at its first cameras; the argument is the lanes (1: the scalar
+// reference, 4, 0: the widest this processor has).
+void BM_SplatFitRaster(benchmark::State& state) {
+  static const std::optional<std::vector<fit_detail::SplatFrame>> frames = []() -> std::optional<std::vector<fit_detail::SplatFrame>> {
+    const FitInput* in = fit_input();
+    if (!in) return std::nullopt;
+    std::vector<fit_detail::SplatFrame> out;
+    for (const auto& [K, T] : in->cameras) out.push_back(fit_detail::project(in->splats, in->coeffs, K, T, 0, in->pixel_filter));
     return out;
   }();
   if (!frames) {
