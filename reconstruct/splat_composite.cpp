@@ -218,9 +218,7 @@ void SplatCompositor::composite(const std::vector<float>& records, int coeffs, c
       const ScreenFootprint fp = screen_footprint(rec[3] * float(K.fx) / pc.z(), rec[4], pixel_filter_px2_);
       const float sigma = std::max(fp.sigma, 1e-4f), o = fp.opacity;
       if (o < kSplatAlphaMin) continue;
-      // The box reaches a hair past where alpha falls under 1/255; the alpha
-      // test itself (with the same exp as the fit) decides the edge pixels.
-      const float r2 = sigma * sigma * std::min(9.f, 2.f * std::log(std::max(255.f * o, 1.f)) + 1e-3f);
+      const float r2 = splat_box_r2(sigma, o);
       const float r = std::sqrt(r2);
       if (u + r < -0.5f || v + r < -0.5f || u - r > float(W) - 0.5f || v - r > float(H) - 0.5f) continue;
       q.u = u, q.v = v, q.k = 0.5f / (sigma * sigma), q.r2 = r2, q.cut2 = 9.f * sigma * sigma, q.o = o;

@@ -111,10 +111,8 @@ void fit_detail::project_into(SplatFrame& f, const std::vector<Splat>& splats, i
       if (fp.opacity < kSplatAlphaMin) continue;
       const float sigma = std::max(fp.sigma, 1e-4f), r = kCut * fp.sigma;
       // A faint facet's alpha falls under 1/255 inside the cut: the passes
-      // visit only that disc's box (a hair past it: the alpha test, with the
-      // same exp, decides its edge pixels), the same pixels as the cut's box
-      // (as the viewer's compositor lists its tiles).
-      const float r2box = sigma * sigma * std::min(kCut * kCut, 2.f * std::log(std::max(255.f * fp.opacity, 1.f)) + 1e-3f);
+      // visit only that disc's box, the same pixels as the cut's box.
+      const float r2box = splat_box_r2(sigma, fp.opacity);
       const float rb = std::sqrt(r2box);
       if (u + rb < -0.5f || v + rb < -0.5f || u - rb > K.width - 0.5f || v - rb > K.height - 0.5f) continue;
       Projected p;

@@ -35,7 +35,9 @@
 // read; the fit stops with an error, and writes nothing, when it diverges.
 #pragma once
 
+#include <algorithm>
 #include <array>
+#include <cmath>
 #include <cstdint>
 #include <functional>
 #include <string>
@@ -83,6 +85,15 @@ inline ScreenFootprint screen_footprint(float sigma_px, float opacity, float fil
   if (!(v > 0)) return {0.f, opacity, 0.f, 0.f, 1.f};
   const float keep = s2 / v, sigma = std::sqrt(v);
   return {sigma, opacity * keep, s2 / sigma, opacity * 2.f * s2 * filter_px2 / (v * v), keep};
+}
+
+// The squared radius (pixels) of the box a footprint of `sigma` pixels and
+// opacity `opacity` (after the pixel filter) can draw in: the 3-sigma cut,
+// or a hair past where its alpha falls under 1/255 if that is nearer (the
+// alpha test, with the same exp, decides the edge pixels). The fit's passes
+// and the CPU compositor visit only that box and list its tiles.
+inline float splat_box_r2(float sigma, float opacity) {
+  return sigma * sigma * std::min(9.f, 2.f * std::log(std::max(255.f * opacity, 1.f)) + 1e-3f);
 }
 
 // Real spherical-harmonic basis (the order and signs 3DGS uses), `n` = 1, 4 or 9.
