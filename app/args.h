@@ -143,6 +143,7 @@ struct BenchArgs {
   int lego_views = 100;  // views: how many of lego's 100 val views (evenly spaced)
   double fit_lego = 1500, fit_others = 300;  // views: seconds of the fit (0: none)
   double fit_ssim = 0.2;                     // views: the fits' SSIM weight (reconstruct --fit-ssim, same default)
+  std::string fit_loss = "l1";               // views: the fits' colour term (reconstruct --fit-loss, same default)
   std::vector<std::string> scenes;           // views: the scenes to run (empty: all)
 };
 struct SummaryArgs {

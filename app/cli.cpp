@@ -41,6 +41,9 @@ void add_bench(CLI::App& app, Chosen& chosen) {
   sub->add_option("--fit-ssim", a->fit_ssim, "views: the fits' loss, (1 - W) squared error + W (1 - SSIM) (reconstruct --fit-ssim)")
       ->check(CLI::Range(0.0, 0.95))
       ->capture_default_str();
+  sub->add_option("--fit-loss", a->fit_loss, "views: the fits' colour term, l2 or l1 (reconstruct --fit-loss)")
+      ->check(CLI::IsMember({"l2", "l1"}))
+      ->capture_default_str();
   sub->add_option("--voxels", a->voxels, "envmap: voxels checked against brute force at the default setting (a tenth elsewhere)")
       ->capture_default_str();
   sub->callback([a, &chosen] { chosen = a; });

@@ -143,6 +143,10 @@ void add_reconstruct(CLI::App& app, Chosen& chosen) {
                   "the fit's loss: (1 - W) x squared error + W x (1 - SSIM), as 3D Gaussian Splatting mixes in D-SSIM (0.2 chosen on lego's val split); 0: squared error alone")
       ->check(CLI::Range(0.0, 0.95))
       ->capture_default_str();
+  sub->add_option("--fit-loss", job.fit_loss,
+                  "the loss's colour term: l2 (the squared error) or l1 (the absolute error, as 3D Gaussian Splatting fits)")
+      ->check(CLI::IsMember({"l2", "l1"}))
+      ->capture_default_str();
   sub->add_option("--fit-pixel-filter", job.fit_pixel_filter_px2,
                   "the fitted billboards' pixel filter, pixels^2: each footprint is drawn convolved with a Gaussian of "
                   "this variance, its energy kept (Mip-Splatting's 2D filter), so a facet smaller than a pixel draws "

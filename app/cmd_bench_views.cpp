@@ -35,6 +35,7 @@ struct SceneRun {
   std::string scene;
   double fit_seconds = 0;    // each model's fit budget
   double fit_ssim = 0;       // its loss's SSIM weight (reconstruct --fit-ssim)
+  std::string fit_loss;      // its colour term (reconstruct --fit-loss)
   std::vector<std::pair<double, EvalSummary>> snapshots;  // lego: the fit at its marks, evaluated
   double build_seconds = 0;  // every model's reconstruct, summed
   double fit_spent = 0;      // of which the fits' seconds
@@ -69,6 +70,7 @@ Status build_and_eval(SceneRun& run, ReconstructJob job, const FrameSource& sour
                       const fs::path& eval_out) {
   job.fit_seconds = run.fit_seconds;
   job.fit_ssim_weight = run.fit_ssim;
+  job.fit_loss = run.fit_loss;
   auto built = run_reconstruct_job(job);
   if (!built) return std::unexpected(with_context(built.error(), run.scene + ": reconstruct"));
   run.build_seconds += built->seconds;
@@ -108,8 +110,8 @@ Status build_and_eval(SceneRun& run, ReconstructJob job, const FrameSource& sour
   return {};
 }
 
-Result<SceneRun> lego(const fs::path& out, int views, double fit, double ssim) {
-  SceneRun run{"lego", fit, ssim};
+Result<SceneRun> lego(const fs::path& out, int views, const ViewsFit& fit) {
+  SceneRun run{"lego", fit.lego, fit.ssim, fit.loss};
   const fs::path data = data_dir() / "nerf_synthetic_lego";
   if (!fs::exists(data / "transforms_train.json")) return fail(ErrorCode::not_found, "no lego in " + data.string());
   for (const char* split : {"train", "val"}) {
@@ -124,7 +126,7 @@ Result<SceneRun> lego(const fs::path& out, int views, double fit, double ssim) {
   job.geometry = Geometry::hull;
   run.size = "800x800";
   for (double m : {60.0, 300.0, 600.0, 900.0, 1200.0})
-    if (m < fit) job.fit_snapshots.push_back(m);
+    if (m < fit.lego) job.fit_snapshots.push_back(m);
   const auto frames = frames_every(100, 100 / std::clamp(views, 1, 100));
   if (auto st = build_and_eval(run, job, {out / "val"}, frames, out / "eval"); !st) return std::unexpected(st.error());
   // The fit as it stood at each mark: PSNR against the fit's seconds.
@@ -143,8 +145,8 @@ Result<SceneRun> lego(const fs::path& out, int views, double fit, double ssim) {
   return run;
 }
 
-Result<SceneRun> rig(const fs::path& out, const std::string& scene, double fit, double ssim) {
-  SceneRun run{"rig " + scene, fit, ssim};
+Result<SceneRun> rig(const fs::path& out, const std::string& scene, const ViewsFit& fit) {
+  SceneRun run{"rig " + scene, fit.others, fit.ssim, fit.loss};
   SynthOptions so;
   so.scene = scene;
   so.views = 24;
@@ -160,8 +162,8 @@ Result<SceneRun> rig(const fs::path& out, const std::string& scene, double fit, 
   return run;
 }
 
-Result<SceneRun> dino(const fs::path& out, double fit, double ssim) {
-  SceneRun run{"dino ring", fit, ssim};
+Result<SceneRun> dino(const fs::path& out, const ViewsFit& fit) {
+  SceneRun run{"dino ring", fit.others, fit.ssim, fit.loss};
   fs::remove_all(out / "session");
   if (auto r = import_dataset("middlebury", data_dir() / "middlebury_dino_ring", out / "session", {}); !r)
     return std::unexpected(r.error());
@@ -178,8 +180,8 @@ Result<SceneRun> dino(const fs::path& out, double fit, double ssim) {
   return run;
 }
 
-Result<SceneRun> bear(const fs::path& out, double fit, double ssim) {
-  SceneRun run{"bear", fit, ssim};
+Result<SceneRun> bear(const fs::path& out, const ViewsFit& fit) {
+  SceneRun run{"bear", fit.others, fit.ssim, fit.loss};
   const fs::path session = out / "session", cal = out / "calibration.json", reg = out / "register";
   fs::remove_all(session);
   if (auto r = import_dataset("realsense", data_dir() / "realsense_d435_bear" / "bear", session, {}); !r)
@@ -246,19 +248,18 @@ std::optional<Pooled> pooled(const SceneRun& run, const std::string& method) {
 
 }  // namespace
 
-int bench_views(const fs::path& out, int lego_views, double fit_lego, double fit_others, double fit_ssim,
-                const std::vector<std::string>& only) {
+int bench_views(const fs::path& out, int lego_views, const ViewsFit& fit, const std::vector<std::string>& only) {
   Stopwatch total;
   Report rep;
   rep.stage = "bench.views";
   std::error_code ec;
   fs::create_directories(out, ec);
   std::vector<std::pair<std::string, std::function<Result<SceneRun>()>>> scenes = {
-      {"lego", [&] { return lego(out / "lego", lego_views, fit_lego, fit_ssim); }},
-      {"bunny", [&] { return rig(out / "bunny", "bunny", fit_others, fit_ssim); }},
-      {"fuzzy", [&] { return rig(out / "fuzzy", "fuzzy", fit_others, fit_ssim); }},
-      {"dino", [&] { return dino(out / "dino", fit_others, fit_ssim); }},
-      {"bear", [&] { return bear(out / "bear", fit_others, fit_ssim); }}};
+      {"lego", [&] { return lego(out / "lego", lego_views, fit); }},
+      {"bunny", [&] { return rig(out / "bunny", "bunny", fit); }},
+      {"fuzzy", [&] { return rig(out / "fuzzy", "fuzzy", fit); }},
+      {"dino", [&] { return dino(out / "dino", fit); }},
+      {"bear", [&] { return bear(out / "bear", fit); }}};
   SweepTable fit_curve;  // lego: held-out PSNR of the fit against its seconds
   fit_curve.columns = {"fit_seconds", "full_psnr_db", "full_ssim"};
   SweepTable t;
@@ -327,9 +328,10 @@ int bench_views(const fs::path& out, int lego_views, double fit_lego, double fit
     if (auto st = plot_png(fit_curve, fs, out / "fit.png"); !st) rep.warnings.push_back(st.error().message);
   }
   rep.params["lego_views"] = double(lego_views);
-  rep.params["fit_seconds_lego"] = fit_lego;
-  rep.params["fit_seconds_others"] = fit_others;
-  rep.params["fit_ssim_weight"] = fit_ssim;
+  rep.params["fit_seconds_lego"] = fit.lego;
+  rep.params["fit_seconds_others"] = fit.others;
+  rep.params["fit_ssim_weight"] = fit.ssim;
+  rep.params["fit_loss"] = fit.loss;
   rep.seconds = total.seconds();
   return finish(rep, out / "report.json");
 }

@@ -36,9 +36,15 @@ int run(const ViewArgs& a);
 int run(const RaytraceArgs& a);
 int run(const EnvmapArgs& a);
 int run(const BenchArgs& a);    // app/cmd_bench.cpp
-// app/cmd_bench_views.cpp; fit seconds 0: no fitted billboards.
-int bench_views(const std::filesystem::path& out, int lego_views, double fit_lego, double fit_others, double fit_ssim,
-                const std::vector<std::string>& scenes);
+// bench views' fits: seconds (0: no fitted billboards) and the loss
+// (reconstruct --fit-ssim, --fit-loss).
+struct ViewsFit {
+  double lego = 1500, others = 300;
+  double ssim = 0.2;
+  std::string loss = "l1";
+};
+// app/cmd_bench_views.cpp.
+int bench_views(const std::filesystem::path& out, int lego_views, const ViewsFit& fit, const std::vector<std::string>& scenes);
 int run(const SummaryArgs& a);  // app/cmd_summary.cpp
 int run(const BatchArgs& a);    // app/cmd_batch.cpp
 

@@ -769,6 +769,7 @@ Status fit_step(const ReconstructJob& job, const Session& s, const std::vector<V
   o.background = fit_background(s, views);
   o.random_background = job.fit_random_background;
   o.ssim_weight = job.fit_ssim_weight;
+  o.loss = job.fit_loss == "l1" ? SplatFitOptions::Loss::l1 : SplatFitOptions::Loss::l2;
   o.pixel_filter_px2 = job.fit_pixel_filter_px2;
   o.split_by = job.fit_split == "gradient" ? SplatFitOptions::SplitBy::gradient : SplatFitOptions::SplitBy::usage;
   o.depth_weight = job.fit_depth_weight;
@@ -826,6 +827,7 @@ Status fit_step(const ReconstructJob& job, const Session& s, const std::vector<V
                                        : fmt::format("{:.3g},{:.3g},{:.3g}", o.background[0], o.background[1], o.background[2]);
   rep.params["fit_sh_degree"] = double(job.fit_sh_degree);
   rep.params["fit_ssim_weight"] = job.fit_ssim_weight;
+  rep.params["fit_loss"] = job.fit_loss;
   rep.params["fit_pixel_filter_px2"] = job.fit_pixel_filter_px2;
   rep.params["fit_split"] = job.fit_split;
   rep.params["fit_max_facets"] = double(job.fit_max_facets);
@@ -848,6 +850,7 @@ Status ReconstructJob::validate() const {
   if (!(fit_seconds >= 0) || !std::isfinite(fit_seconds)) return fail(ErrorCode::invalid, "fit_seconds: must be >= 0 seconds");
   if (fit_sh_degree < 0 || fit_sh_degree > 2) return fail(ErrorCode::invalid, "fit_sh_degree: must be 0, 1 or 2");
   if (!(fit_ssim_weight >= 0 && fit_ssim_weight < 1)) return fail(ErrorCode::invalid, "fit_ssim_weight: must be in [0, 1)");
+  if (fit_loss != "l2" && fit_loss != "l1") return fail(ErrorCode::invalid, "fit_loss: must be l2 or l1");
   if (fit_split != "usage" && fit_split != "gradient")
     return fail(ErrorCode::invalid, "fit_split: must be usage or gradient");
   if (!(fit_pixel_filter_px2 >= 0 && fit_pixel_filter_px2 <= 4))

@@ -264,7 +264,8 @@ void SplatCompositor::composite(const std::vector<float>& records, int coeffs, c
       range(q, x0, x1, y0, y1);
       b.tile_range[i] = {uint16_t(x0), uint16_t(x1), uint16_t(y0), uint16_t(y1)};
       for (int ty = y0; ty <= y1; ++ty)
-        for (int tx = x0; tx <= x1; ++tx) ++count[size_t(ty) * tiles_x + tx];
+        for (int tx = x0; tx <= x1; ++tx)
+          count[size_t(ty) * tiles_x + tx] += splat_reaches_tile(q.u, q.v, q.r2, tx, ty, kCompositeTile);
     }
   });
   b.start.assign(tiles + 1, 0);
@@ -286,9 +287,11 @@ void SplatCompositor::composite(const std::vector<float>& records, int coeffs, c
     for (size_t i = lo; i < hi; ++i) {
       if (b.p[i].o == 0) continue;
       const auto [x0, x1, y0, y1] = b.tile_range[i];
+      const ProjectedFacet& q = b.p[i];
       const uint64_t entry = uint64_t(b.depth[i]) << 32 | uint64_t(i);
       for (int ty = y0; ty <= y1; ++ty)
-        for (int tx = x0; tx <= x1; ++tx) b.list[fill[size_t(ty) * tiles_x + tx]++] = entry;
+        for (int tx = x0; tx <= x1; ++tx)
+          if (splat_reaches_tile(q.u, q.v, q.r2, tx, ty, kCompositeTile)) b.list[fill[size_t(ty) * tiles_x + tx]++] = entry;
     }
   });
   st.tile_entries = b.list.size();

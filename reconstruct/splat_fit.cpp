@@ -177,8 +177,13 @@ void fit_detail::project_into(SplatFrame& f, const std::vector<Splat>& splats, i
       const int y0 = std::max(0, int(std::floor((p.v - r + 0.5f) / kTile)));
       const int y1 = std::min(f.tiles_y - 1, int(std::floor((p.v + r + 0.5f) / kTile)));
       span[i] = {uint16_t(x0), uint16_t(std::max(x0 - 1, x1)), uint16_t(y0), uint16_t(std::max(y0 - 1, y1))};
-      for (int ty = y0; ty <= y1; ++ty)
-        for (int tx = x0; tx <= x1; ++tx) ++count[size_t(ty) * f.tiles_x + tx];
+      if (x0 == x1 || y0 == y1) {
+        for (int ty = y0; ty <= y1; ++ty)
+          for (int tx = x0; tx <= x1; ++tx) ++count[size_t(ty) * f.tiles_x + tx];
+      } else {
+        for (int ty = y0; ty <= y1; ++ty)
+          for (int tx = x0; tx <= x1; ++tx) count[size_t(ty) * f.tiles_x + tx] += splat_reaches_tile(p.u, p.v, p.r2box, tx, ty, kTile);
+      }
     }
   });
   f.tile_start.assign(tiles + 1, 0);
@@ -198,8 +203,15 @@ void fit_detail::project_into(SplatFrame& f, const std::vector<Splat>& splats, i
     uint32_t* fill = &counts[size_t(k) * tiles];
     for (size_t i = lo; i < hi; ++i) {
       const auto [x0, x1, y0, y1] = span[i];
-      for (int ty = y0; ty <= y1; ++ty)
-        for (int tx = x0; tx <= x1; ++tx) f.tile_list[fill[size_t(ty) * f.tiles_x + tx]++] = keys[i].second;
+      if (x0 == x1 || y0 == y1) {
+        for (int ty = y0; ty <= y1; ++ty)
+          for (int tx = x0; tx <= x1; ++tx) f.tile_list[fill[size_t(ty) * f.tiles_x + tx]++] = keys[i].second;
+      } else {
+        const Projected& p = f.p[keys[i].second];
+        for (int ty = y0; ty <= y1; ++ty)
+          for (int tx = x0; tx <= x1; ++tx)
+            if (splat_reaches_tile(p.u, p.v, p.r2box, tx, ty, kTile)) f.tile_list[fill[size_t(ty) * f.tiles_x + tx]++] = keys[i].second;
+      }
     }
   });
 }
@@ -221,8 +233,11 @@ void for_tiles(const SplatFrame& f, int threads, const std::function<void(int, i
 namespace fit_detail {
 
 double forward_backward(const SplatFrame& f, const ImageU8& target, const Behind& bg, float scale, int threads,
-                        std::vector<std::vector<Grad>>* grads_out, float ssim_weight, int lanes, float depth_scale,
-                        double* depth_sq, double* depth_px) {
+                        std::vector<std::vector<Grad>>* grads_out, const Loss& loss, int lanes, double* depth_sq,
+                        double* depth_px) {
+  const float ssim_weight = loss.ssim_weight, depth_scale = loss.depth_scale;
+  // d |e| / d e (0 at 0), or d e^2 / d e.
+  const auto colour_slope = [l1 = loss.l1](float e) { return l1 ? float((e > 0) - (e < 0)) : 2.f * e; };
   const int workers = std::max(1, std::min(worker_count(threads), f.tiles_x * f.tiles_y));
   if (grads_out) {
     // Each thread's gradients, zeroed by both threads in chunks (at 600,000
@@ -270,7 +285,7 @@ double forward_backward(const SplatFrame& f, const ImageU8& target, const Behind
         for (int c = 0; c < 3; ++c) {
           const float diff = st.C[c][y * kTile + x] - float(gt[c]) * (1.f / 255.f);
           e += double(diff) * diff;
-          dC[c * kPixels + y * kTile + x] = 2.f * scale * diff;
+          dC[c * kPixels + y * kTile + x] = scale * colour_slope(diff);
         }
       }
     return e;
@@ -306,7 +321,7 @@ double forward_backward(const SplatFrame& f, const ImageU8& target, const Behind
           const size_t k0 = (size_t(st.y0 + y) * f.width + st.x0 + x) * 3;
           for (int c = 0; c < 3; ++c)
             dC[c * kPixels + y * kTile + x] =
-                (1.f - ssim_weight) * 2.f * scale * (drawn.data[k0 + c] - photo.data[k0 + c]) - ssim_weight * dssim.data[k0 + c];
+                (1.f - ssim_weight) * scale * colour_slope(drawn.data[k0 + c] - photo.data[k0 + c]) - ssim_weight * dssim.data[k0 + c];
         }
       tile_backward(f, tile, bg, st, dC, (*grads_out)[size_t(wk)].data(), lanes);
     });
@@ -670,7 +685,8 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
   // the scale where its voxel spans about 1.5 pixels or more, the second
   // half of the stage at twice that resolution.
   const float w_in = splats.front().voxel;
-  const float depth_scale = fit_depth ? float(o.depth_weight) / (w_in * w_in) : 0.f;
+  const fit_detail::Loss loss{float(o.ssim_weight), o.loss == SplatFitOptions::Loss::l1,
+                              fit_depth ? float(o.depth_weight) / (w_in * w_in) : 0.f};
   if (o.coarse_levels > 0) splats = merge_cells(splats, o.coarse_levels, o);
   Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
   for (const Splat& p : splats) centroid += p.anchor.cast<double>();
@@ -734,7 +750,7 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
       ImageU8 moved;
       const auto [target, bg] = step_target(i, s0, *photos[i], gen, colour, moved);
       sq += forward_backward(project(splats, coeffs, K, views[i].world_from_camera, o.threads, filter), *target, bg, 1.f,
-                             o.threads, nullptr, 0, 0, 0, &dsq, &dpx);
+                             o.threads, nullptr, {}, 0, &dsq, &dpx);
       px += 3.0 * K.width * K.height;
     }
     initial_psnr = 10 * std::log10(1.0 / std::max(sq / px, 1e-12));
@@ -813,7 +829,7 @@ Result<SplatFitSummary> fit_splats(std::vector<Splat>& splats_io, const std::vec
         project_into(f, splats, coeffs, K, view.world_from_camera, o.threads, filter);
         const double t_b = elapsed();
         const float inv = 1.f / float(3.0 * K.width * K.height);
-        sq += forward_backward(f, *target, bg, inv, o.threads, &grads, float(o.ssim_weight), 0, depth_scale, &dsq, &dpx);
+        sq += forward_backward(f, *target, bg, inv, o.threads, &grads, loss, 0, &dsq, &dpx);
         const double t_c = elapsed();
         sum.seconds_project += t_b - t_a;
         sum.seconds_raster += t_c - t_b;

@@ -96,6 +96,17 @@ inline float splat_box_r2(float sigma, float opacity) {
   return sigma * sigma * std::min(9.f, 2.f * std::log(std::max(255.f * opacity, 1.f)) + 1e-3f);
 }
 
+// Whether a footprint centred at (u, v) whose box has squared radius `r2`
+// reaches a pixel centre of tile (tx, ty), `tile` pixels square (pixel x's
+// centre at x): a tile its box's corner overlaps but its disc does not is
+// left out of the tile lists (no pixel there passes the alpha test). Only
+// tiles off both the centre's tile row and column can be missed.
+inline bool splat_reaches_tile(float u, float v, float r2, int tx, int ty, int tile) {
+  const float x = std::clamp(u, float(tx * tile), float(tx * tile + tile - 1)) - u;
+  const float y = std::clamp(v, float(ty * tile), float(ty * tile + tile - 1)) - v;
+  return x * x + y * y <= r2;
+}
+
 // Real spherical-harmonic basis (the order and signs 3DGS uses), `n` = 1, 4 or 9.
 void sh_basis(const Eigen::Vector3f& dir, int n, float* out);
 // c = max(0, 0.5 + sum_k sh[k] basis[k]) per channel.
@@ -206,6 +217,10 @@ struct SplatFitOptions {
   // Field Rendering", 2023); 0: squared error alone. The training PSNR
   // stays the squared error's.
   double ssim_weight = 0;
+  // The colour term of that loss: the squared error, or the absolute error
+  // as Kerbl et al. use it.
+  enum class Loss { l2, l1 };
+  Loss loss = Loss::l2;
   // Views with a depth: the loss adds depth_weight x the mean over their
   // depth pixels of (sum_i (|pc_i| - d) w_i / w)^2, w the facets' given
   // voxel: each pixel's compositing weights, spent off the measured surface

@@ -350,7 +350,7 @@ TEST(SplatRaster, EveryLaneWidthDrawsAndDifferentiatesAlike) {
     const fit_detail::Behind bg{white, nullptr, with_depth ? &depth : nullptr};
     std::vector<std::vector<fit_detail::Grad>> ref_parts;
     double ref_dsq = 0, ref_dpx = 0;
-    const double ref_err = fit_detail::forward_backward(f, photo, bg, 1.f, 1, &ref_parts, ssim, 1, 1.f, &ref_dsq, &ref_dpx);
+    const double ref_err = fit_detail::forward_backward(f, photo, bg, 1.f, 1, &ref_parts, {ssim, false, 1.f}, 1, &ref_dsq, &ref_dpx);
     const auto ref = summed(ref_parts);
     double scale_c = 0, scale_o = 0, scale_s = 0, scale_uv = 0, scale_w = 0, scale_d = 0;
     for (const auto& g : ref) {
@@ -375,7 +375,7 @@ TEST(SplatRaster, EveryLaneWidthDrawsAndDifferentiatesAlike) {
       SCOPED_TRACE(lanes);
       std::vector<std::vector<fit_detail::Grad>> parts;
       double dsq = 0, dpx = 0;
-      const double err = fit_detail::forward_backward(f, photo, bg, 1.f, 1, &parts, ssim, lanes, 1.f, &dsq, &dpx);
+      const double err = fit_detail::forward_backward(f, photo, bg, 1.f, 1, &parts, {ssim, false, 1.f}, lanes, &dsq, &dpx);
       EXPECT_NEAR(err, ref_err, 1e-5 * ref_err);
       EXPECT_NEAR(dsq, ref_dsq, 1e-5 * ref_dsq);
       const auto g = summed(parts);
@@ -391,6 +391,97 @@ TEST(SplatRaster, EveryLaneWidthDrawsAndDifferentiatesAlike) {
       }
       EXPECT_LT(worst, 1e-4);
     }
+  }
+}
+
+// A tile's list leaves out only facets that cannot draw there (those whose
+// box misses the tile, or whose disc misses every pixel centre of it): the
+// tiles composited with every facet listed in every tile, near to far, are
+// the same to the bit.
+TEST(SplatRaster, TileListsLeaveOutOnlyFacetsThatCannotDraw) {
+  const auto cloud = translucent_cloud();
+  const Intrinsics K = ragged_camera();
+  const auto f = fit_detail::project(cloud, 4, K, ring_camera(30, 10, 1.2), 1);
+  std::vector<uint32_t> near_to_far(f.p.size());
+  std::iota(near_to_far.begin(), near_to_far.end(), 0u);
+  std::stable_sort(near_to_far.begin(), near_to_far.end(), [&](uint32_t a, uint32_t b) { return f.p[a].pc.z() < f.p[b].pc.z(); });
+  fit_detail::SplatFrame all = f;
+  const size_t tiles = size_t(f.tiles_x) * f.tiles_y;
+  all.tile_start.clear(), all.tile_list.clear();
+  for (size_t t = 0; t <= tiles; ++t) all.tile_start.push_back(uint32_t(t * near_to_far.size()));
+  for (size_t t = 0; t < tiles; ++t) all.tile_list.insert(all.tile_list.end(), near_to_far.begin(), near_to_far.end());
+  EXPECT_LT(f.tile_list.size() * 4, all.tile_list.size());
+  const float white[3] = {1, 1, 1};
+  int differing = 0;
+  for (int t = 0; t < int(tiles); ++t) {
+    fit_detail::TileState a, b;
+    fit_detail::tile_forward(f, t, {white}, a);
+    fit_detail::tile_forward(all, t, {white}, b);
+    for (int i = 0; i < fit_detail::kTile * fit_detail::kTile; ++i)
+      differing += a.T[i] != b.T[i] || a.C[0][i] != b.C[0][i] || a.C[1][i] != b.C[1][i] || a.C[2][i] != b.C[2][i];
+  }
+  EXPECT_EQ(differing, 0);
+}
+
+// The absolute error's gradient (Loss::l1) is the backward pass (held to
+// the squared error's derivative below) of each pixel's error sign: per
+// tile, the sign of drawn - photo (x scale, (1 - w) with the SSIM term's
+// gradient beside it) walked back through the tile gives what
+// forward_backward gives, with and without the SSIM term. The squared error
+// it returns is the same either way.
+TEST(SplatRaster, AbsoluteErrorDifferentiatesTheErrorsSign) {
+  const auto cloud = translucent_cloud();
+  const Intrinsics K = ragged_camera();
+  const Eigen::Isometry3d T = ring_camera(30, 10, 1.2);
+  const ImageU8 photo = to_u8(render_splats(truth_sphere(), 1, K, T, {1, 1, 1}));
+  const auto f = fit_detail::project(cloud, 4, K, T, 1);
+  const float white[3] = {1, 1, 1};
+  const fit_detail::Behind bg{white};
+  constexpr int kPx = fit_detail::kTile * fit_detail::kTile;
+  const float scale = 0.01f;
+  for (float ssim : {0.f, 0.3f}) {
+    SCOPED_TRACE(ssim);
+    std::vector<std::vector<fit_detail::Grad>> parts, sq_parts;
+    const double err = fit_detail::forward_backward(f, photo, bg, scale, 1, &parts, {ssim, true}, 1);
+    EXPECT_EQ(err, fit_detail::forward_backward(f, photo, bg, scale, 1, &sq_parts, {ssim, false}, 1));
+    const auto got = summed(parts);
+    // The SSIM term's per-pixel gradient, from the squared-error run: its dC
+    // less the squared error's part is what forward_backward added.
+    ImageF drawn(K.width, K.height, 3), target(K.width, K.height, 3), dssim;
+    std::vector<fit_detail::TileState> states(size_t(f.tiles_x) * f.tiles_y);
+    for (int t = 0; t < f.tiles_x * f.tiles_y; ++t) {
+      fit_detail::tile_forward(f, t, bg, states[size_t(t)], 1);
+      const auto& st = states[size_t(t)];
+      for (int y = 0; y < st.h; ++y)
+        for (int x = 0; x < st.w; ++x)
+          for (int c = 0; c < 3; ++c) {
+            drawn.at(st.x0 + x, st.y0 + y, c) = st.C[c][y * fit_detail::kTile + x];
+            target.at(st.x0 + x, st.y0 + y, c) = float(photo.at(st.x0 + x, st.y0 + y, c)) / 255.f;
+          }
+    }
+    if (ssim > 0) ssim_and_gradient(drawn, target, &dssim, 1);
+    std::vector<fit_detail::Grad> want(f.p.size(), fit_detail::Grad{});
+    for (int t = 0; t < f.tiles_x * f.tiles_y; ++t) {
+      auto& st = states[size_t(t)];
+      alignas(32) float dC[4 * kPx] = {};
+      for (int y = 0; y < st.h; ++y)
+        for (int x = 0; x < st.w; ++x)
+          for (int c = 0; c < 3; ++c) {
+            const float e = drawn.at(st.x0 + x, st.y0 + y, c) - target.at(st.x0 + x, st.y0 + y, c);
+            dC[c * kPx + y * fit_detail::kTile + x] =
+                (1.f - ssim) * scale * float((e > 0) - (e < 0)) - (ssim > 0 ? ssim * dssim.at(st.x0 + x, st.y0 + y, c) : 0.f);
+          }
+      fit_detail::tile_backward(f, t, bg, st, dC, want.data(), 1);
+    }
+    double worst = 0, largest = 0;
+    for (size_t i = 0; i < want.size(); ++i) {
+      largest = std::max({largest, double(std::abs(want[i].o)), double(std::abs(want[i].u))});
+      for (int c = 0; c < 3; ++c) worst = std::max(worst, double(std::abs(got[i].c[c] - want[i].c[c])));
+      worst = std::max({worst, double(std::abs(got[i].o - want[i].o)), double(std::abs(got[i].u - want[i].u)),
+                        double(std::abs(got[i].v - want[i].v)), double(std::abs(got[i].sigma - want[i].sigma))});
+    }
+    ASSERT_GT(largest, 0);
+    EXPECT_LT(worst, 1e-5 * largest);
   }
 }
 
@@ -418,14 +509,14 @@ TEST(SplatRaster, GradientMatchesFiniteDifferences) {
   const fit_detail::Behind bg{black, nullptr, with_depth ? &depth : nullptr};
   const float depth_scale = 0.5f;
   std::vector<std::vector<fit_detail::Grad>> parts;
-  fit_detail::forward_backward(f, photo, bg, 1.f, 1, &parts, 0, 0, depth_scale);
+  fit_detail::forward_backward(f, photo, bg, 1.f, 1, &parts, {0, false, depth_scale});
   const auto g = summed(parts);
   std::vector<size_t> order(g.size());
   std::iota(order.begin(), order.end(), size_t(0));
   std::sort(order.begin(), order.end(), [&](size_t a, size_t b) { return g[a].weight > g[b].weight; });
   auto loss = [&] {
     double dsq = 0;
-    const double e = fit_detail::forward_backward(f, photo, bg, 1.f, 1, nullptr, 0, 0, depth_scale, &dsq);
+    const double e = fit_detail::forward_backward(f, photo, bg, 1.f, 1, nullptr, {0, false, depth_scale}, 0, &dsq);
     return e + depth_scale * dsq;
   };
   // d loss / d x by central differences, x one of the facet's fields.

@@ -117,16 +117,24 @@ SplatFrame project(const std::vector<Splat>& splats, int coeffs, const Intrinsic
 void project_into(SplatFrame& f, const std::vector<Splat>& splats, int coeffs, const Intrinsics& K,
                   const Eigen::Isometry3d& world_from_camera, int threads, float pixel_filter_px2 = kSplatPixelFilterPx2);
 
+// The loss a step differentiates (forward_backward).
+struct Loss {
+  float ssim_weight = 0;  // w: (1 - w) x the colour term + w x (1 - SSIM)
+  bool l1 = false;        // the colour term: the absolute error, else the squared error
+  float depth_scale = 0;  // with bg.depth: plus this x the squared depth error
+};
+
 // The squared error of one image and, into `grads_out` (per thread, per
 // projected facet; null: the error only), the gradient of the loss: `scale`
-// x squared error, or with `ssim_weight` w > 0, (1 - w) x that + w x (1 -
-// SSIM) (the mean of the SSIM map, core/image_metrics.h; all tiles
-// composited first, the map needing each pixel's neighbours). With
-// bg.depth, plus `depth_scale` x the squared depth error where the pixel has
-// a depth (its sum added into `depth_sq`, the pixels counted into
+// x the colour term (the squared error, or with loss.l1 the absolute error,
+// summed over pixels and channels), or with loss.ssim_weight w > 0, (1 - w)
+// x that + w x (1 - SSIM) (the mean of the SSIM map, core/image_metrics.h;
+// all tiles composited first, the map needing each pixel's neighbours).
+// With bg.depth, plus loss.depth_scale x the squared depth error where the
+// pixel has a depth (its sum added into `depth_sq`, the pixels counted into
 // `depth_px`). `lanes` as tile_forward's.
 double forward_backward(const SplatFrame& f, const ImageU8& target, const Behind& bg, float scale, int threads,
-                        std::vector<std::vector<Grad>>* grads_out, float ssim_weight = 0, int lanes = 0,
-                        float depth_scale = 0, double* depth_sq = nullptr, double* depth_px = nullptr);
+                        std::vector<std::vector<Grad>>* grads_out, const Loss& loss = {}, int lanes = 0,
+                        double* depth_sq = nullptr, double* depth_px = nullptr);
 
 }  // namespace s2r::fit_detail

@@ -332,11 +332,14 @@ void BM_SplatFitProject(benchmark::State& state) {
   }
   fit_detail::SplatFrame f;
   size_t view = 0;
+  double entries = 0;
   for (auto _ : state) {
     const auto& [K, T] = in->cameras[view++ % in->cameras.size()];
     fit_detail::project_into(f, in->splats, in->coeffs, K, T, 0, in->pixel_filter);
     benchmark::DoNotOptimize(f.tile_list.data());
+    entries += double(f.tile_list.size());
   }
+  state.counters["tile_entries"] = entries / double(std::max<size_t>(1, view));  // (facet, tile) pairs a view
 }
 BENCHMARK(BM_SplatFitProject)->Unit(benchmark::kMillisecond);
 
@@ -363,7 +366,7 @@ void BM_SplatFitRaster(benchmark::State& state) {
   size_t view = 0;
   for (auto _ : state) {
     const auto& f = (*frames)[view++ % frames->size()];
-    benchmark::DoNotOptimize(fit_detail::forward_backward(f, grey, {white}, 1.f, 0, &grads, 0.f, int(state.range(0))));
+    benchmark::DoNotOptimize(fit_detail::forward_backward(f, grey, {white}, 1.f, 0, &grads, {}, int(state.range(0))));
   }
 }
 BENCHMARK(BM_SplatFitRaster)->Arg(1)->Arg(4)->Arg(0)->Unit(benchmark::kMillisecond);
