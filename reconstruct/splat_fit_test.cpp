@@ -329,17 +329,24 @@ ImageF depth_target(const Intrinsics& K) {
   return d;
 }
 
+// The rasterizer checks' case: the translucent cloud projected at a ring
+// camera whose last tiles are partial, and a photo of the truth sphere
+// there on white.
+struct CloudView {
+  Intrinsics K = ragged_camera();
+  Eigen::Isometry3d T = ring_camera(30, 10, 1.2);
+  ImageU8 photo = to_u8(render_splats(truth_sphere(), 1, K, T, {1, 1, 1}));
+  fit_detail::SplatFrame f = fit_detail::project(translucent_cloud(), 4, K, T, 1);
+};
+
 // The fit's rasterizer in 4 and 8 lanes is its scalar reference: the same
 // error and gradient (to float rounding: the lanes sum in another order) of
 // the squared error and of the SSIM loss, each with and without the depth
 // channel, on a cloud of translucent facets at a camera whose last tiles
 // are partial.
 TEST(SplatRaster, EveryLaneWidthDrawsAndDifferentiatesAlike) {
-  const auto cloud = translucent_cloud();
-  const Intrinsics K = ragged_camera();
-  const Eigen::Isometry3d T = ring_camera(30, 10, 1.2);
-  const ImageU8 photo = to_u8(render_splats(truth_sphere(), 1, K, T, {1, 1, 1}));
-  const auto f = fit_detail::project(cloud, 4, K, T, 1);
+  const CloudView cv;
+  const auto& [K, T, photo, f] = cv;
   ASSERT_GT(f.p.size(), 1000u);
   const float white[3] = {1, 1, 1};
   const ImageF depth = depth_target(K);
@@ -399,9 +406,8 @@ TEST(SplatRaster, EveryLaneWidthDrawsAndDifferentiatesAlike) {
 // tiles composited with every facet listed in every tile, near to far, are
 // the same to the bit.
 TEST(SplatRaster, TileListsLeaveOutOnlyFacetsThatCannotDraw) {
-  const auto cloud = translucent_cloud();
-  const Intrinsics K = ragged_camera();
-  const auto f = fit_detail::project(cloud, 4, K, ring_camera(30, 10, 1.2), 1);
+  const CloudView cv;
+  const auto& f = cv.f;
   std::vector<uint32_t> near_to_far(f.p.size());
   std::iota(near_to_far.begin(), near_to_far.end(), 0u);
   std::stable_sort(near_to_far.begin(), near_to_far.end(), [&](uint32_t a, uint32_t b) { return f.p[a].pc.z() < f.p[b].pc.z(); });
@@ -430,11 +436,8 @@ TEST(SplatRaster, TileListsLeaveOutOnlyFacetsThatCannotDraw) {
 // forward_backward gives, with and without the SSIM term. The squared error
 // it returns is the same either way.
 TEST(SplatRaster, AbsoluteErrorDifferentiatesTheErrorsSign) {
-  const auto cloud = translucent_cloud();
-  const Intrinsics K = ragged_camera();
-  const Eigen::Isometry3d T = ring_camera(30, 10, 1.2);
-  const ImageU8 photo = to_u8(render_splats(truth_sphere(), 1, K, T, {1, 1, 1}));
-  const auto f = fit_detail::project(cloud, 4, K, T, 1);
+  const CloudView cv;
+  const auto& [K, T, photo, f] = cv;
   const float white[3] = {1, 1, 1};
   const fit_detail::Behind bg{white};
   constexpr int kPx = fit_detail::kTile * fit_detail::kTile;
