@@ -25,7 +25,8 @@
 // and a pixel stops once T would fall under 1e-4. c_i = max(0, 0.5 + SH(d)),
 // d the unit direction from the camera's centre to X_i.
 //
-// The fit minimises the mean squared error of C against each training photo
+// The fit minimises the mean error of C against each training photo,
+// squared or absolute (SplatFitOptions::loss), with SSIM beside it
 // (composited on b where it has a matte) with Adam, one photo per step, on
 // an image pyramid, coarse to fine over the grid as well: the fit starts on
 // cells 2^coarse_levels voxels wide, and at the end of each stage facets
@@ -212,10 +213,10 @@ struct SplatFitOptions {
   // training PSNR (and the divergence test's first figure) are measured on
   // such colours too.
   bool random_background = false;
-  // The loss: (1 - w) x mean squared error + w x (1 - SSIM), as Kerbl et
-  // al. mix L1 and D-SSIM ("3D Gaussian Splatting for Real-Time Radiance
-  // Field Rendering", 2023); 0: squared error alone. The training PSNR
-  // stays the squared error's.
+  // The loss: (1 - w) x the mean colour term (`loss`) + w x (1 - SSIM), as
+  // Kerbl et al. mix L1 and D-SSIM ("3D Gaussian Splatting for Real-Time
+  // Radiance Field Rendering", 2023); 0: the colour term alone. The
+  // training PSNR stays the squared error's.
   double ssim_weight = 0;
   // The colour term of that loss: the squared error, or the absolute error
   // as Kerbl et al. use it.
