@@ -137,13 +137,18 @@ struct EnvmapArgs {
 };
 
 // ---- benches and the run page (app/cmd_bench.cpp, app/cmd_summary.cpp) ----
+// bench views' fits: seconds (0: no fitted billboards) and the loss
+// (reconstruct --fit-ssim, --fit-loss; the same defaults).
+struct ViewsFit {
+  double lego = 1500, others = 300;
+  double ssim = 0.2;
+  std::string loss = "l1";
+};
 struct BenchArgs {
   std::string stage, out, scene = "blob";
   int repeats = 3, size = 512, voxels = 10000;
   int lego_views = 100;  // views: how many of lego's 100 val views (evenly spaced)
-  double fit_lego = 1500, fit_others = 300;  // views: seconds of the fit (0: none)
-  double fit_ssim = 0.2;                     // views: the fits' SSIM weight (reconstruct --fit-ssim, same default)
-  std::string fit_loss = "l1";               // views: the fits' colour term (reconstruct --fit-loss, same default)
+  ViewsFit fit;                               // views: the fits' seconds and loss
   std::vector<std::string> scenes;           // views: the scenes to run (empty: all)
 };
 struct SummaryArgs {

@@ -29,19 +29,19 @@ void add_bench(CLI::App& app, Chosen& chosen) {
   sub->add_option("--lego-views", a->lego_views, "views: lego val views evaluated, evenly spaced (100 = all)")
       ->check(CLI::Range(1, 100))
       ->capture_default_str();
-  sub->add_option("--fit", a->fit_lego, "views: seconds of lego's fit (its PSNR at 1, 5, 10, 15, 20 minutes on the way, fit.png); 0: no fit")
+  sub->add_option("--fit", a->fit.lego, "views: seconds of lego's fit (its PSNR at 1, 5, 10, 15, 20 minutes on the way, fit.png); 0: no fit")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
   sub->add_option("--scenes", a->scenes, "views: the scenes to run, of lego, bunny, fuzzy, dino, bear (default all)")
       ->delimiter(',')
       ->check(CLI::IsMember({"lego", "bunny", "fuzzy", "dino", "bear"}));
-  sub->add_option("--fit-others", a->fit_others, "views: seconds of the other scenes' fits; 0: no fit")
+  sub->add_option("--fit-others", a->fit.others, "views: seconds of the other scenes' fits; 0: no fit")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
-  sub->add_option("--fit-ssim", a->fit_ssim, "views: the fits' loss, (1 - W) squared error + W (1 - SSIM) (reconstruct --fit-ssim)")
+  sub->add_option("--fit-ssim", a->fit.ssim, "views: the fits' loss, (1 - W) x the colour term + W x (1 - SSIM) (reconstruct --fit-ssim)")
       ->check(CLI::Range(0.0, 0.95))
       ->capture_default_str();
-  sub->add_option("--fit-loss", a->fit_loss, "views: the fits' colour term, l2 or l1 (reconstruct --fit-loss)")
+  sub->add_option("--fit-loss", a->fit.loss, "views: the fits' colour term, l2 or l1 (reconstruct --fit-loss)")
       ->check(CLI::IsMember({"l2", "l1"}))
       ->capture_default_str();
   sub->add_option("--voxels", a->voxels, "envmap: voxels checked against brute force at the default setting (a tenth elsewhere)")

@@ -140,7 +140,7 @@ void add_reconstruct(CLI::App& app, Chosen& chosen) {
                "views with a matte (an RGBA data set): each fit step moves the photo onto a random colour under its "
                "matte and composites the facets on the same, so opacity is fitted to the matte");
   sub->add_option("--fit-ssim", job.fit_ssim_weight,
-                  "the fit's loss: (1 - W) x squared error + W x (1 - SSIM), as 3D Gaussian Splatting mixes in D-SSIM (0.2 chosen on lego's val split); 0: squared error alone")
+                  "the fit's loss: (1 - W) x the colour term (--fit-loss) + W x (1 - SSIM), as 3D Gaussian Splatting mixes in D-SSIM (0.2 chosen on lego's val split); 0: the colour term alone")
       ->check(CLI::Range(0.0, 0.95))
       ->capture_default_str();
   sub->add_option("--fit-loss", job.fit_loss,

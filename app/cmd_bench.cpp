@@ -1090,7 +1090,7 @@ int run(const BenchArgs& a) {
   if (a.stage == "raytrace") return bench_raytrace(out, std::max(7, a.repeats), a.size);
   if (a.stage == "envmap") return bench_envmap(out, std::max(100, a.voxels));
   if (a.stage == "material") return bench_material(out, std::max(5, a.repeats));
-  if (a.stage == "views") return bench_views(out, a.lego_views, {a.fit_lego, a.fit_others, a.fit_ssim, a.fit_loss}, a.scenes);
+  if (a.stage == "views") return bench_views(out, a.lego_views, a.fit, a.scenes);
   std::fprintf(stderr, "s2r bench %s: not yet available in this build (only 'rig', 'capture', 'calibrate', 'register', 'reconstruct', 'render', 'raytrace', 'envmap', 'material' and 'views')\n", a.stage.c_str());
   return 2;
 }

@@ -36,13 +36,6 @@ int run(const ViewArgs& a);
 int run(const RaytraceArgs& a);
 int run(const EnvmapArgs& a);
 int run(const BenchArgs& a);    // app/cmd_bench.cpp
-// bench views' fits: seconds (0: no fitted billboards) and the loss
-// (reconstruct --fit-ssim, --fit-loss).
-struct ViewsFit {
-  double lego = 1500, others = 300;
-  double ssim = 0.2;
-  std::string loss = "l1";
-};
 // app/cmd_bench_views.cpp.
 int bench_views(const std::filesystem::path& out, int lego_views, const ViewsFit& fit, const std::vector<std::string>& scenes);
 int run(const SummaryArgs& a);  // app/cmd_summary.cpp
